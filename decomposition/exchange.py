@@ -1,0 +1,142 @@
+"""Migration: send rows of named arrays to their new owner ranks.
+
+Notes
+-----
+:func:`migrate` is collective. It costs one small ``Allreduce`` (agreement on the field
+names, dtypes and trailing shapes, and on the validity of ``dest``), one ``Alltoall`` of
+row counts, and one ``Alltoallv`` per field. Rows travel as raw bytes through a
+contiguous MPI datatype of one row, so any fixed-size numpy dtype and any trailing shape
+works, and counts are in rows (not bytes) so large messages do not overflow MPI's ``int``
+counts as early.
+"""
+from __future__ import annotations
+
+import zlib
+
+import numpy as np
+from mpi4py import MPI
+
+from decomposition.comm import raise_if_any
+
+
+def row_datatype(row_bytes: int):
+    """A committed MPI datatype of ``row_bytes`` contiguous bytes (free it after use).
+
+    Parameters
+    ----------
+    row_bytes : int
+        Size of one row in bytes (``itemsize * prod(trailing shape)``), > 0.
+    """
+    dtype = MPI.BYTE.Create_contiguous(int(row_bytes))
+    dtype.Commit()
+    return dtype
+
+
+def byte_view(a: np.ndarray) -> np.ndarray:
+    """The memory of a C-contiguous array as a flat ``uint8`` view (no copy)."""
+    return a.reshape(-1).view(np.uint8)
+
+
+def field_signature(fields: dict) -> int:
+    """A 31-bit checksum of the sorted field names, dtypes and trailing shapes."""
+    sig = tuple((name, np.asarray(fields[name]).dtype.str, np.asarray(fields[name]).shape[1:])
+                for name in sorted(fields))
+    return zlib.crc32(repr(sig).encode()) & 0x7FFFFFFF
+
+
+def check_field(name: str, a: np.ndarray, where: str) -> None:
+    """Raise if an array cannot travel as raw bytes (object dtype or 0-d)."""
+    if a.ndim == 0:
+        raise ValueError(f"{where}: field '{name}' is a scalar; pass one row per particle "
+                         f"(an array of shape (N, ...))")
+    if a.dtype.hasobject:
+        raise TypeError(f"{where}: field '{name}' has dtype {a.dtype} which holds Python "
+                        f"objects; convert it to a numeric or fixed-size string dtype")
+
+
+def migrate(comm, fields: dict, dest) -> dict:
+    """Collective: send row ``i`` of every field to rank ``dest[i]``.
+
+    Parameters
+    ----------
+    comm : mpi4py.MPI.Comm
+        The communicator (every rank calls, also those with no rows).
+    fields : dict of str to ndarray
+        Arrays with the same first-axis length ``N`` on this rank; any fixed-size dtype
+        and trailing shape, e.g. ``(N,)``, ``(N, dim)``, ``(N, dim, dim)``. Every rank must
+        pass the same names, dtypes and trailing shapes (an empty rank passes
+        zero-length arrays of the right dtype and shape).
+    dest : array_like of int, shape (N,)
+        Destination rank of each row, in ``[0, comm.size)``.
+
+    Returns
+    -------
+    dict of str to ndarray
+        The rows this rank owns afterwards, ordered by source rank, then by the original
+        local order on the source. On one rank the input arrays are returned unchanged
+        (not copied).
+
+    Raises
+    ------
+    ValueError
+        On every rank, if on any rank the field lengths differ from ``len(dest)``, a
+        destination is out of range, or the field names/dtypes/trailing shapes differ
+        between ranks.
+    """
+    dest = np.asarray(dest).reshape(-1)
+    size = comm.size
+    n = dest.shape[0]
+    problem = ""
+    for name in sorted(fields):
+        a = np.asarray(fields[name])
+        check_field(name, a, "migrate")
+        if a.shape[0] != n:
+            problem = (f"field '{name}' has {a.shape[0]} rows but dest has {n}; pass one "
+                       f"destination per row")
+            break
+    if not problem and n and (dest.dtype.kind not in "iu" or dest.min() < 0 or dest.max() >= size):
+        problem = (f"dest must hold integer ranks in [0, {size}), got dtype {dest.dtype} and "
+                   f"range [{dest.min()}, {dest.max()}]; compute it with RCB.owner")
+    if size == 1:
+        if problem:
+            raise ValueError(f"migrate: {problem}")
+        return dict(fields)
+
+    sig = field_signature(fields)
+    agree = np.array([sig, -sig, 1 if problem else 0], dtype=np.int64)
+    comm.Allreduce(MPI.IN_PLACE, agree, op=MPI.MAX)
+    if agree[2]:
+        # Every rank is here: agree on the first failing rank's message.
+        raise_if_any(comm, ValueError(f"migrate: {problem}") if problem else None)
+    if agree[0] != -agree[1]:
+        raise ValueError("migrate: ranks passed different field names, dtypes or trailing "
+                         "shapes; pass the same set on every rank (zero-length arrays on "
+                         "an empty rank)")
+
+    dest = dest.astype(np.int64, copy=False)
+    order = np.argsort(dest, kind="stable")
+    send_counts = np.bincount(dest, minlength=size).astype(np.int32)
+    recv_counts = np.empty(size, dtype=np.int32)
+    comm.Alltoall(send_counts, recv_counts)
+    send_displ = np.zeros(size, dtype=np.int32)
+    recv_displ = np.zeros(size, dtype=np.int32)
+    np.cumsum(send_counts[:-1], out=send_displ[1:])
+    np.cumsum(recv_counts[:-1], out=recv_displ[1:])
+    n_recv = int(recv_counts.sum())
+
+    out = {}
+    for name in sorted(fields):
+        a = np.asarray(fields[name])
+        send = np.ascontiguousarray(a[order])
+        recv = np.empty((n_recv,) + a.shape[1:], dtype=a.dtype)
+        row_bytes = a.dtype.itemsize * int(np.prod(a.shape[1:], dtype=np.int64))
+        if row_bytes > 0:
+            rowtype = row_datatype(row_bytes)
+            try:
+                comm.Alltoallv([byte_view(send), (send_counts, send_displ), rowtype],
+                               [byte_view(recv), (recv_counts, recv_displ), rowtype])
+            finally:
+                rowtype.Free()
+        out[name] = recv
+    # Keep the caller's key order.
+    return {name: out[name] for name in fields}

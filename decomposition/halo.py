@@ -1,0 +1,359 @@
+"""Halo exchange: copies of owned rows needed by other ranks (and periodic images).
+
+Notes
+-----
+A :class:`Halo` is an exchange pattern: per destination rank, the list of owned rows to
+send and, optionally, the offset (m) of the periodic image each row represents. It is
+built once (collectively) and reused by :meth:`Halo.exchange` for any set of fields
+until the particles move to other ranks.
+
+Building
+    :meth:`Halo.from_send_lists` takes any pattern. One ``Alltoall`` of the per-rank row
+    counts tells every rank how many rows it will receive from whom; after that a rank
+    only talks to the ranks it exchanges rows with.
+
+    :meth:`Halo.build` derives the pattern geometrically from an :class:`RCB`: an owned
+    row goes to every rank whose closed sub-box lies within ``radius`` of the row's
+    position or of one of its periodic images (shifts of ``0, ±length`` per periodic
+    axis). The zero-shift image is never sent to the owner itself; shifted images may
+    be (a periodic axis on one rank). Rows farther than ``radius`` inside the own
+    sub-box are discarded first (neither they nor their images can be near another
+    sub-box, because the sub-boxes tile the global box); for each image shift only the
+    ranks whose sub-box is within ``radius`` of the images' bounding box are tested,
+    one vectorised distance test per such rank. Since every owned position lies in its
+    owner's closed sub-box, the owned plus halo rows of a rank contain every row within
+    ``radius`` of any of its owned rows (with ``radius`` < the periodic length).
+
+Exchanging
+    Each field travels as raw bytes (``MPI.BYTE``), one non-blocking message per field
+    and neighbour: ``Irecv`` from every rank with rows for us, ``Isend`` to every rank
+    we have rows for (tag :attr:`Tag.HALO`), the self part copied locally, then one
+    ``Waitall``. Rows for one destination are ordered by local row, then image; halo
+    rows arrive ordered by source rank, then by that send order. Fields named in
+    ``shift_fields`` get the image offset added by the sender.
+
+    :meth:`Halo.reverse_add` runs the same pattern backwards (tag
+    :attr:`Tag.HALO_REVERSE`) and sums the returned rows per owned row.
+
+Every rank must pass the same field names, dtypes and trailing shapes; :meth:`exchange`
+and :meth:`reverse_add` are not collective (a rank with no neighbours returns at once),
+but each must be called by all ranks that exchange rows with each other.
+"""
+from __future__ import annotations
+
+import numpy as np
+from mpi4py import MPI
+
+from decomposition.comm import Tag, raise_if_any
+from decomposition.exchange import byte_view, check_field
+
+
+class Halo:
+    """A reusable exchange pattern of owned rows to other ranks (and own images).
+
+    Use :meth:`Halo.build` (geometric) or :meth:`Halo.from_send_lists` (any pattern).
+    See the module Notes for the algorithm.
+
+    Attributes
+    ----------
+    n_owned : int
+        Owned rows at build time (length of the arrays :meth:`reverse_add` returns).
+    n_send : int
+        Rows this rank sends (a row counts once per destination and image).
+    n_halo : int
+        Rows this rank receives.
+    send_counts, recv_counts : ndarray of int64, shape (size,)
+        Rows sent to / received from each rank.
+    send_index : ndarray of int64, shape (n_send,)
+        Owned row of every sent row, grouped by destination rank.
+    send_shift : ndarray of float64, shape (n_send, dim), or None
+        Image offset (m) of every sent row; None when no row is shifted.
+    """
+
+    def __init__(self, comm, send_index, send_counts, send_shift, n_owned, recv_counts):
+        self.comm = comm
+        self.send_index = send_index
+        self.send_counts = send_counts
+        self.send_shift = send_shift
+        self.n_owned = int(n_owned)
+        self.recv_counts = recv_counts
+        self.n_send = int(send_index.shape[0])
+        self.n_halo = int(recv_counts.sum())
+        self._send_displ = np.concatenate(([0], np.cumsum(send_counts)))
+        self._recv_displ = np.concatenate(([0], np.cumsum(recv_counts)))
+        me = comm.rank
+        self._send_ranks = [r for r in np.nonzero(send_counts)[0].tolist() if r != me]
+        self._recv_ranks = [r for r in np.nonzero(recv_counts)[0].tolist() if r != me]
+
+    # ------------------------------------------------------------- builders
+    @classmethod
+    def from_send_lists(cls, comm, send_index, send_shift=None, n_owned=None) -> "Halo":
+        """Collective: a pattern from explicit per-destination lists of owned rows.
+
+        Parameters
+        ----------
+        comm : mpi4py.MPI.Comm
+        send_index : list of array_like of int, length ``comm.size``
+            ``send_index[r]`` are the owned rows to send to rank ``r`` in send order
+            (rows may repeat, e.g. for several images; ``send_index[comm.rank]`` are
+            copies to self, meaningful for periodic images).
+        send_shift : list of (array_like of shape (n_r, dim) or None), or None
+            Image offset (m) added to ``shift_fields`` of each sent row; ``None`` (the
+            list or an entry) means no shift.
+        n_owned : int, optional
+            Owned rows on this rank (length of :meth:`reverse_add` results). Default:
+            largest sent index + 1 (0 if nothing is sent); pass it when the last owned
+            rows are not sent anywhere.
+
+        Raises
+        ------
+        ValueError
+            On every rank, if on any rank the lists have the wrong length, an index is
+            negative or not below ``n_owned``, or a shift has the wrong shape.
+        """
+        size = comm.size
+        error, idx, shifts = None, [], []
+        try:
+            if len(send_index) != size:
+                raise ValueError(f"Halo.from_send_lists: {len(send_index)} send lists for "
+                                 f"{size} ranks; pass one (possibly empty) list per rank")
+            if send_shift is not None and len(send_shift) != size:
+                raise ValueError(f"Halo.from_send_lists: {len(send_shift)} shift lists for "
+                                 f"{size} ranks; pass one per rank or None")
+            for r in range(size):  # loop over ranks
+                i = np.asarray(send_index[r]).reshape(-1)
+                if i.size and i.dtype.kind not in "iu":
+                    raise ValueError(f"Halo.from_send_lists: send_index[{r}] has dtype "
+                                     f"{i.dtype}; pass integer row indices")
+                idx.append(i.astype(np.int64))
+                s = None if send_shift is None else send_shift[r]
+                if s is not None:
+                    s = np.asarray(s, dtype=np.float64)
+                    if s.ndim != 2 or s.shape[0] != i.size:
+                        raise ValueError(f"Halo.from_send_lists: send_shift[{r}] has shape "
+                                         f"{s.shape}; pass ({i.size}, dim) offsets (m)")
+                shifts.append(s)
+            flat = np.concatenate(idx) if idx else np.zeros(0, np.int64)
+            top = int(flat.max()) + 1 if flat.size else 0
+            n_owned = top if n_owned is None else int(n_owned)
+            if flat.size and (flat.min() < 0 or top > n_owned):
+                raise ValueError(f"Halo.from_send_lists: row indices span [{flat.min()}, "
+                                 f"{top - 1}] but only {n_owned} rows are owned; pass "
+                                 f"indices into the owned rows and the right n_owned")
+            dims = {s.shape[1] for s in shifts if s is not None}
+            if len(dims) > 1:
+                raise ValueError(f"Halo.from_send_lists: shifts have different widths "
+                                 f"{sorted(dims)}; pass (n_r, dim) offsets with one dim")
+        except ValueError as exc:
+            error = exc
+        raise_if_any(comm, error)
+
+        send_counts = np.array([i.size for i in idx], dtype=np.int64)
+        send_shift_all = None
+        if any(s is not None for s in shifts):
+            dim = next(s.shape[1] for s in shifts if s is not None)
+            send_shift_all = np.concatenate(
+                [np.zeros((i.size, dim)) if s is None else s for i, s in zip(idx, shifts)])
+        return cls._from_flat(comm, flat, send_counts, send_shift_all, n_owned)
+
+    @classmethod
+    def _from_flat(cls, comm, flat, send_counts, send_shift, n_owned) -> "Halo":
+        send32 = send_counts.astype(np.int32)
+        recv32 = np.empty_like(send32)
+        comm.Alltoall(send32, recv32)
+        return cls(comm, flat, send_counts, send_shift, n_owned, recv32.astype(np.int64))
+
+    @classmethod
+    def build(cls, comm, rcb, x_owned, radius: float, box) -> "Halo":
+        """Collective: the geometric halo of an RCB partition.
+
+        Parameters
+        ----------
+        comm : mpi4py.MPI.Comm
+        rcb : RCB
+            The partition the owned rows follow (built for ``comm.size`` ranks).
+        x_owned : array_like, shape (n_owned, dim)
+            Owned positions (m), wrapped into the box on periodic axes and owned per
+            ``rcb.owner``.
+        radius : float
+            Interaction radius (m), > 0 and smaller than the box length on every
+            periodic axis.
+        box : Box
+            The global box (its periodic flags decide which images exist).
+
+        Returns
+        -------
+        Halo
+            ``send_shift`` holds the image offsets when ``box`` has a periodic axis.
+
+        Raises
+        ------
+        ValueError
+            On every rank, if on any rank the positions have the wrong shape, or the
+            radius or partition do not fit the box or communicator.
+        """
+        x = np.asarray(x_owned, dtype=np.float64)
+        radius = float(radius)
+        dim, size, me = box.dim, comm.size, comm.rank
+        error = None
+        if x.ndim != 2 or x.shape[1] != dim:
+            error = ValueError(f"Halo.build: positions have shape {x.shape}; pass an "
+                               f"(n_owned, {dim}) array (m)")
+        elif not (np.isfinite(radius) and radius > 0):
+            error = ValueError(f"Halo.build: radius {radius} m must be finite and positive; "
+                               f"pass the kernel support radius")
+        elif any(p and radius >= L for p, L in zip(box.periodic, box.length)):
+            error = ValueError(f"Halo.build: radius {radius} m is not smaller than the "
+                               f"periodic box length {box.length.tolist()} m; enlarge the "
+                               f"periodic axes or reduce the particle spacing")
+        elif rcb.n_ranks != size:
+            error = ValueError(f"Halo.build: the partition has {rcb.n_ranks} ranks but the "
+                               f"communicator {size}; rebuild it with RCB.build(comm, ...)")
+        raise_if_any(comm, error)
+
+        lo_all, hi_all = rcb.subboxes()
+        my_lo, my_hi = lo_all[me], hi_all[me]
+        glo, ghi = np.asarray(box.lo), np.asarray(box.hi)
+        r2 = radius * radius
+        # Rows deeper than radius inside the own sub-box are needed nowhere.
+        inner = np.minimum(x - my_lo, my_hi - x).min(axis=1) if x.size else np.zeros(0)
+        cand = np.nonzero(inner <= radius)[0]
+        xc = x[cand]
+        shifts = box.image_shifts()
+        dest_l, row_l, img_l = [], [], []
+        for m, s in enumerate(shifts):  # loop over images (at most 27)
+            y, rows = xc + s, cand
+            if m > 0:  # an image matters only near the global box
+                gap = np.maximum(0.0, np.maximum(glo - y, y - ghi))
+                keep = (gap * gap).sum(axis=1) <= r2
+                y, rows = y[keep], rows[keep]
+            if rows.size == 0:
+                continue
+            ylo, yhi = y.min(axis=0), y.max(axis=0)
+            gap = np.maximum(0.0, np.maximum(lo_all - yhi, ylo - hi_all))
+            near = (gap * gap).sum(axis=1) <= r2
+            if m == 0:
+                near[me] = False
+            for r in np.nonzero(near)[0]:  # loop over candidate ranks
+                gap = np.maximum(0.0, np.maximum(lo_all[r] - y, y - hi_all[r]))
+                hit = np.nonzero((gap * gap).sum(axis=1) <= r2)[0]
+                if hit.size:
+                    dest_l.append(np.full(hit.size, r, dtype=np.int64))
+                    row_l.append(rows[hit])
+                    img_l.append(np.full(hit.size, m, dtype=np.int64))
+        if dest_l:
+            dest, rows, img = (np.concatenate(v) for v in (dest_l, row_l, img_l))
+        else:
+            dest = rows = img = np.zeros(0, dtype=np.int64)
+        order = np.lexsort((img, rows, dest))
+        dest, rows, img = dest[order], rows[order], img[order]
+        send_counts = np.bincount(dest, minlength=size).astype(np.int64)
+        send_shift = shifts[img] if box.any_periodic else None
+        return cls._from_flat(comm, rows, send_counts, send_shift, x.shape[0])
+
+    # ------------------------------------------------------------ exchanges
+    def _post(self, arrays: dict, out: dict, forward: bool) -> list:
+        """Post the messages moving ``arrays`` into ``out`` (forward or reverse)."""
+        comm, me = self.comm, self.comm.rank
+        if forward:
+            src_d, dst_d = self._send_displ, self._recv_displ
+            to_ranks, from_ranks, tag = self._send_ranks, self._recv_ranks, int(Tag.HALO)
+        else:
+            src_d, dst_d = self._recv_displ, self._send_displ
+            to_ranks, from_ranks, tag = self._recv_ranks, self._send_ranks, int(Tag.HALO_REVERSE)
+        requests = []
+        for name in sorted(arrays):  # the same order on every rank
+            a, b = arrays[name], out[name]
+            b[dst_d[me]:dst_d[me + 1]] = a[src_d[me]:src_d[me + 1]]
+            row = a.dtype.itemsize * int(np.prod(a.shape[1:], dtype=np.int64))
+            if row == 0:
+                continue
+            abytes, bbytes = byte_view(a), byte_view(b)
+            for r in from_ranks:
+                requests.append(comm.Irecv([bbytes[dst_d[r] * row:dst_d[r + 1] * row], MPI.BYTE],
+                                           source=r, tag=tag))
+            for r in to_ranks:
+                requests.append(comm.Isend([abytes[src_d[r] * row:src_d[r + 1] * row], MPI.BYTE],
+                                           dest=r, tag=tag))
+        return requests
+
+    def exchange(self, fields: dict, shift_fields=("x",)) -> dict:
+        """Send the pattern's rows of every field; return the received halo rows.
+
+        Parameters
+        ----------
+        fields : dict of str to ndarray
+            Arrays whose first ``n_owned`` rows are the owned rows (longer arrays, e.g.
+            owned + old halo, are fine); any fixed-size dtype and trailing shape.
+        shift_fields : iterable of str
+            Fields (positions, shape (n, dim), m) to which the image offset of each sent
+            row is added. Names not in ``fields`` are ignored.
+
+        Returns
+        -------
+        dict of str to ndarray
+            ``n_halo`` rows per field, ordered by source rank, then send order.
+        """
+        shift_fields = set(shift_fields)
+        send, out = {}, {}
+        for name in fields:
+            a = np.asarray(fields[name])
+            check_field(name, a, "Halo.exchange")
+            if a.shape[0] < self.n_owned:
+                raise ValueError(f"Halo.exchange: field '{name}' has {a.shape[0]} rows but "
+                                 f"the halo was built for {self.n_owned} owned rows; rebuild "
+                                 f"the halo after particles move between ranks")
+            rows = a[self.send_index]
+            if name in shift_fields and self.send_shift is not None:
+                if a.shape[1:] != self.send_shift.shape[1:]:
+                    raise ValueError(f"Halo.exchange: shift field '{name}' has rows of shape "
+                                     f"{a.shape[1:]} but the image offsets "
+                                     f"{self.send_shift.shape[1:]}; list only positions in "
+                                     f"shift_fields")
+                rows = (rows + self.send_shift).astype(a.dtype, copy=False)
+            send[name] = np.ascontiguousarray(rows)
+            out[name] = np.empty((self.n_halo,) + a.shape[1:], dtype=a.dtype)
+        MPI.Request.Waitall(self._post(send, out, forward=True))
+        return out
+
+    def reverse_add(self, values: dict) -> dict:
+        """Return contributions on halo rows to their owners and sum them per owned row.
+
+        Parameters
+        ----------
+        values : dict of str to ndarray
+            Arrays of ``n_halo`` rows (contributions accumulated on the halo rows, e.g.
+            forces in N); no image offset is applied.
+
+        Returns
+        -------
+        dict of str to ndarray
+            Arrays of shape ``(n_owned, ...)`` (``n_owned`` at build time) with the sum
+            of all contributions returned to each owned row (zeros where nothing came),
+            summed in a deterministic order.
+        """
+        back, halo = {}, {}
+        for name in values:
+            a = np.asarray(values[name])
+            check_field(name, a, "Halo.reverse_add")
+            if a.shape[0] != self.n_halo:
+                raise ValueError(f"Halo.reverse_add: field '{name}' has {a.shape[0]} rows "
+                                 f"but there are {self.n_halo} halo rows; pass the halo part "
+                                 f"only (rows n_owned: of the full arrays)")
+            halo[name] = np.ascontiguousarray(a)
+            back[name] = np.empty((self.n_send,) + a.shape[1:], dtype=a.dtype)
+        MPI.Request.Waitall(self._post(halo, back, forward=False))
+        out = {}
+        for name, b in back.items():
+            res = np.zeros((self.n_owned,) + b.shape[1:], dtype=b.dtype)
+            width = int(np.prod(b.shape[1:], dtype=np.int64))
+            if b.dtype.kind == "f" and b.shape[0] and width:
+                flat_b = b.reshape(b.shape[0], width)
+                flat_r = res.reshape(self.n_owned, width)
+                for j in range(flat_b.shape[1]):  # loop over components
+                    flat_r[:, j] = np.bincount(self.send_index, weights=flat_b[:, j],
+                                               minlength=self.n_owned)
+            elif b.shape[0]:
+                np.add.at(res, self.send_index, b)
+            out[name] = res
+        return out

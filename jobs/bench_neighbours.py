@@ -1,0 +1,108 @@
+"""Benchmark: neighbour search + density summation on a moving lattice (issue: foundation).
+
+Runs the real step (migrate, halo, cell-list neighbours, density summation eq. 33, kinematic
+move) on a periodic block of particles and prints one CSV row per case:
+particle-steps per second per core, neighbours per particle, bytes per particle.
+
+    mpirun -n 2 .venv/bin/python jobs/bench_neighbours.py --dim 3 --particles 1e5 --steps 10
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import os
+import sys
+import tempfile
+
+import numpy as np
+
+from decomposition import world
+from decomposition.reduce import broadcast
+from parsph.io import read_stats
+from parsph.run import run
+from parsph.scene import load_scene
+
+SCENE = """
+[scene]
+name = "bench_neighbours"
+[domain]
+dim = {dim}
+particle_size = {d}
+lo = {lo}
+hi = {hi}
+periodic = {periodic}
+[run]
+end_time = 1.0e9
+mode = "kinematic"
+dt = {dt}
+max_steps = {steps}
+rebalance_tolerance = 1.5
+[output]
+every = 1.0e9
+progress = false
+[materials.m]
+model = "kinematic"
+density = 1000.0
+[[bodies]]
+name = "block"
+material = "m"
+shape = "box"
+lo = {lo}
+hi = {hi}
+velocity = {vel}
+"""
+
+COLUMNS = ["benchmark", "dim", "particles", "ranks", "steps", "s_per_step",
+           "particle_steps_per_s_per_core", "neighbours_per_particle", "bytes_per_particle"]
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--dim", type=int, default=3)
+    ap.add_argument("--particles", type=float, default=1e5)
+    ap.add_argument("--steps", type=int, default=10)
+    ap.add_argument("--csv", default=None, help="append the row to this CSV file")
+    args = ap.parse_args()
+    comm = world()
+    dim = args.dim
+    n_side = int(round(args.particles ** (1.0 / dim)))
+    d = 1.0 / n_side
+    lo = [0.0] * dim
+    hi = [1.0] * dim
+    vel = [0.3 * d] + [0.0] * (dim - 1)  # slow drift: particles cross the rank boundary
+    text = SCENE.format(dim=dim, d=d, lo=lo, hi=hi, periodic=str([True] * dim).lower(),
+                        dt=1.0, steps=args.steps, vel=vel)
+    tmp = broadcast(comm, tempfile.mkdtemp(prefix="parsph-bench-") if comm.rank == 0 else None)
+    path = os.path.join(tmp, "scene.toml")
+    if comm.rank == 0:
+        with open(path, "w") as fh:
+            fh.write(text)
+    comm.Barrier()
+    summary = run(load_scene(path), os.path.join(tmp, "out"), comm=comm, progress=False)
+    if comm.rank == 0:
+        stats = read_stats(os.path.join(tmp, "out", "stats.csv"))
+        parts = [k for k in stats if k.startswith("wall_s_") and k != "wall_s_output"]
+        per_step = np.sum([stats[k] for k in parts], axis=0)[1:]  # step 1 excluded (warm-up)
+        s_step = float(np.median(per_step))
+        n = summary["particles"]
+        row = {"benchmark": "neighbours+density", "dim": dim, "particles": n,
+               "ranks": comm.size, "steps": len(per_step), "s_per_step": f"{s_step:.4g}",
+               "particle_steps_per_s_per_core": f"{n / s_step / comm.size:.4g}",
+               "neighbours_per_particle": f"{summary['neighbours_per_particle']:.1f}",
+               "bytes_per_particle": f"{summary['bytes_per_particle']:.0f}"}
+        writer = csv.DictWriter(sys.stdout, COLUMNS)
+        writer.writerow(row)
+        if args.csv:
+            new = not os.path.exists(args.csv)
+            with open(args.csv, "a", newline="") as fh:
+                w = csv.DictWriter(fh, COLUMNS)
+                if new:
+                    w.writeheader()
+                w.writerow(row)
+        import shutil
+
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,3 @@
+from parsph.cli import main
+
+raise SystemExit(main())

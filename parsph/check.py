@@ -1,0 +1,65 @@
+"""``parsph check``: what a run would build, without running it."""
+from __future__ import annotations
+
+import numpy as np
+
+from decomposition.box import Box
+from decomposition.exchange import migrate
+from decomposition.partition import RCB
+from decomposition.reduce import gather_to_root, global_sum
+from parsph.budget import check_budget
+from parsph.geometry import generate
+from parsph.kernel import smoothing_length, support_radius
+from parsph.materials import PHASE_FLUID, PHASE_SOLID, PHASE_WALL
+from parsph.pipeline import INFRASTRUCTURE, plan
+
+
+def check(comm, scene) -> str:
+    """Collective: a report of stages, particle counts per rank and memory (on rank 0)."""
+    specs = plan(scene, strict=False)
+    est = check_budget(comm, scene, specs)
+    d = scene.domain.particle_size
+    h = smoothing_length(d)
+    fields = generate(comm, scene)
+    box = Box(tuple(scene.domain.lo), tuple(scene.domain.hi), tuple(scene.domain.periodic))
+    rcb = RCB.build(comm, fields["x"], box)
+    fields = migrate(comm, fields, rcb.owner(fields["x"]))
+    phase = fields["phase"]
+    counts = global_sum(comm, np.array([(phase == k).sum() for k in
+                                        (PHASE_SOLID, PHASE_FLUID, PHASE_WALL)], dtype=np.int64))
+    per_rank = gather_to_root(comm, len(phase))
+    if comm.rank != 0:
+        return ""
+    total = int(counts.sum())
+    mib = 2.0 ** 20
+    lines = [
+        f"scene '{scene.name}' ({scene.source})",
+        f"  {scene.domain.dim}D, particle size d = {d:g} m, h = 1.2 d = {h:g} m, "
+        f"support 2h = {support_radius(h):g} m",
+        f"  mode {scene.run.mode}, end time {scene.run.end_time:g} s, "
+        f"frames every {scene.output.every:g} s",
+        "stages of one step:",
+    ]
+    rows = [(n, doc) for n, doc in INFRASTRUCTURE] + [
+        (s.name, s.doc + ("" if s.available else "  [NOT AVAILABLE in this version]"))
+        for s in specs]
+    lines += [f"  {name:12s} {doc}" for name, doc in rows]
+    lines += [
+        f"particles: {total} (solid {int(counts[0])}, fluid {int(counts[1])}, "
+        f"wall {int(counts[2])})",
+        "per rank: " + ", ".join(f"{r}: {n}" for r, n in enumerate(per_rank)),
+        f"memory (estimate): {total * est['bytes_per_particle'] / mib:.1f} MiB total, "
+        f"{total * est['bytes_per_particle'] / mib / comm.size:.1f} MiB per rank "
+        f"({est['bytes_per_particle']} B per particle)"
+        + (f"; this node has {est['node_memory'] / 2**30:.1f} GiB" if est["node_memory"] else ""),
+    ]
+    return "\n".join(lines)
+
+
+def check_and_report(comm, scene) -> str:
+    """The report of :func:`check`, then the error :func:`plan` gives if the run cannot go."""
+    text = check(comm, scene)
+    if comm.rank == 0:
+        print(text, flush=True)
+    plan(scene)  # raises the SceneError of a stage this version lacks
+    return text

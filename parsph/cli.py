@@ -1,0 +1,203 @@
+"""Command line: ``parsph run|check|scenes|info|plot``.
+
+Every verb works the same on 1 rank and under ``mpirun -n N``. Bad input ends with one
+message on rank 0, no traceback, exit status 2, on every rank; a numerical failure with
+exit status 3. A bug (any other exception) prints its traceback and aborts all ranks so
+that none hangs.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import traceback
+
+from parsph import __version__
+from parsph.errors import NumericalError, ParsphError
+
+EXIT_OK, EXIT_BUG, EXIT_INPUT, EXIT_NUMERICAL = 0, 1, 2, 3
+VERBS = ("run", "check", "scenes", "info", "plot")
+DEFAULT_SCENE = "hydrostatic"
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that raises instead of printing on every rank and exiting."""
+
+    def error(self, message):
+        raise ParsphError(f"{self.prog}: {message} (see `{self.prog} --help`)")
+
+
+def _parser() -> _Parser:
+    p = _Parser(prog="parsph", description="Phase-change TLSPH-IISPH landslide simulation "
+                "on MPI and PETSc. PETSc options (-ppe_ksp_monitor, -log_view, ...) pass through.")
+    p.add_argument("--version", action="version", version=f"parsph {__version__}")
+    sub = p.add_subparsers(dest="verb", metavar="{run,check,scenes,info,plot}", parser_class=_Parser)
+    r = sub.add_parser("run", help="run a scene (default: the built-in default scene)")
+    r.add_argument("scene", nargs="?", default=DEFAULT_SCENE,
+                   help="built-in scene name or TOML file (default: %(default)s)")
+    r.add_argument("--out", default=None, help="output directory (default: out/SCENE)")
+    r.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a scene key, e.g. --set domain.particle_size=0.01")
+    r.add_argument("--restart", default=None, metavar="FILE", help="continue from a checkpoint")
+    r.add_argument("--no-progress", action="store_true", help="no progress bar")
+    r.add_argument("-v", "--verbose", action="store_true", help="debug logging on rank 0")
+    c = sub.add_parser("check", help="print stages, particle counts per rank and memory")
+    c.add_argument("scene", help="built-in scene name or TOML file")
+    c.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
+    sub.add_parser("scenes", help="list the built-in scenes")
+    sub.add_parser("info", help="versions of MPI, mpi4py, PETSc/hypre, HDF5, numba, numpy")
+    pl = sub.add_parser("plot", help="render frames of a run directory to PNG")
+    pl.add_argument("dir", help="run output directory (with particles.h5)")
+    pl.add_argument("--frames", default="last", help="last | all | comma-separated steps")
+    pl.add_argument("--color-by", default="phase,speed,eps_p",
+                    help="comma-separated: phase, speed, eps_p, p, rho, rank")
+    pl.add_argument("--out", default=None, help="directory for the PNG files (default: DIR)")
+    return p
+
+
+def split_petsc_options(extra: list[str]) -> list[str]:
+    """Leftover arguments are PETSc options (``-name [value]``); anything else is an error."""
+    petsc, prev_option = [], False
+    for tok in extra:
+        if tok.startswith("--"):
+            raise ParsphError(f"unknown option '{tok}' (see `parsph run --help`; PETSc options "
+                              f"take a single dash, e.g. -ppe_ksp_monitor)")
+        if tok.startswith("-") and not _is_number(tok):
+            petsc.append(tok)
+            prev_option = True
+        elif prev_option:
+            petsc.append(tok)
+            prev_option = False
+        else:
+            raise ParsphError(f"unexpected argument '{tok}' (see `parsph --help`)")
+    return petsc
+
+
+def _is_number(tok: str) -> bool:
+    try:
+        float(tok)
+        return True
+    except ValueError:
+        return False
+
+
+def _load(comm, scene_name, overrides):
+    """Load and validate the scene on rank 0; every rank gets the scene or the same error."""
+    from decomposition.reduce import broadcast
+    from parsph.scene import load_scene
+
+    payload = None
+    if comm.rank == 0:
+        try:
+            payload = ("ok", load_scene(scene_name, overrides))
+        except ParsphError as exc:
+            payload = ("error", str(exc))
+    status, value = broadcast(comm, payload)
+    if status == "error":
+        raise ParsphError(value)
+    return value
+
+
+def cmd_run(comm, args, petsc) -> int:
+    from parsph.pipeline import plan, uses_petsc
+    from parsph.run import run
+
+    if args.restart:
+        raise ParsphError("--restart: checkpoints are not written by this version of parsph yet; "
+                          "start the run from its scene")
+    scene = _load(comm, args.scene, args.overrides)
+    specs = plan(scene)
+    if petsc and not uses_petsc(specs) and comm.rank == 0:
+        logging.getLogger("parsph").warning(
+            "PETSc options %s ignored: scene '%s' solves no implicit system", " ".join(petsc),
+            scene.name)
+    out = args.out or f"out/{scene.name}"
+    run(scene, out, comm=comm, petsc_args=petsc, progress=False if args.no_progress else None)
+    return EXIT_OK
+
+
+def cmd_check(comm, args) -> int:
+    from parsph.check import check_and_report
+
+    check_and_report(comm, _load(comm, args.scene, args.overrides))
+    return EXIT_OK
+
+
+def cmd_scenes(comm) -> int:
+    from parsph.scene import builtin_names, load_scene
+
+    if comm.rank == 0:
+        for name in builtin_names():
+            print(f"{name:22s} {load_scene(name).scene.description}")
+    return EXIT_OK
+
+
+def cmd_info(comm) -> int:
+    from parsph.info import info
+
+    rows = info()
+    if comm.rank == 0:
+        width = max(len(k) for k in rows)
+        for key, value in rows.items():
+            print(f"{key:{width}s}  {value}")
+    return EXIT_OK
+
+
+def cmd_plot(comm, args) -> int:
+    from parsph.io.plot import plot_run
+
+    if comm.rank == 0:
+        frames = args.frames
+        if frames not in ("last", "all"):
+            try:
+                frames = [int(s) for s in frames.split(",")]
+            except ValueError:
+                raise ParsphError(f"--frames {args.frames!r}: give last, all or comma-separated "
+                                  f"step numbers") from None
+        color_by = tuple(s.strip() for s in args.color_by.split(",") if s.strip())
+        for path in plot_run(args.dir, out=args.out, color_by=color_by, frames=frames):
+            print(path)
+    return EXIT_OK
+
+
+def main(argv=None) -> int:
+    """Entry point of the ``parsph`` console script and ``python -m parsph``."""
+    from decomposition import world
+    from decomposition.comm import abort
+    from parsph.log import setup_logging
+
+    comm = world()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    try:
+        args, extra = _parser().parse_known_args(argv)
+        setup_logging(comm, verbose=getattr(args, "verbose", False))
+        if args.verb is None:
+            raise ParsphError(f"no command given; commands: {', '.join(VERBS)} "
+                              f"(see `parsph --help`)")
+        petsc = split_petsc_options(extra) if args.verb == "run" else []
+        if extra and args.verb != "run":
+            raise ParsphError(f"unexpected argument(s) {' '.join(extra)} for `parsph {args.verb}`")
+        if args.verb == "run":
+            return cmd_run(comm, args, petsc)
+        if args.verb == "check":
+            return cmd_check(comm, args)
+        if args.verb == "scenes":
+            return cmd_scenes(comm)
+        if args.verb == "info":
+            return cmd_info(comm)
+        return cmd_plot(comm, args)
+    except NumericalError as exc:
+        if comm.rank == 0:
+            print(f"parsph: numerical failure: {exc}", file=sys.stderr)
+        return EXIT_NUMERICAL
+    except ParsphError as exc:
+        if comm.rank == 0:
+            print(f"parsph: error: {exc}", file=sys.stderr)
+        return EXIT_INPUT
+    except SystemExit:
+        raise
+    except BaseException:  # noqa: BLE001 - a bug: show it and take every rank down
+        traceback.print_exc()
+        sys.stderr.flush()
+        abort(comm, EXIT_BUG)
+        return EXIT_BUG

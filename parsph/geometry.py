@@ -1,0 +1,197 @@
+"""Particles from a scene's bodies and walls, generated in parallel.
+
+Notes
+-----
+No rank builds the whole set. Each body or wall is a regular lattice of spacing ``d``
+over its bounding box (points at ``origin + (k + 1/2) d``) filtered by an inside test.
+Rank ``r`` of ``P`` generates the lattice indices ``[r T / P, (r + 1) T / P)`` of the
+``T`` candidates, keeps those inside, and numbers them with an exclusive prefix sum of
+the kept counts. Global ids therefore follow lattice order and do not depend on the
+rank count, which is what the 1-rank vs 2-rank comparisons by id rely on. Particles are
+then moved to their owners by recursive coordinate bisection (see :mod:`parsph.domain`).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from decomposition.numbering import global_offset
+from parsph.errors import SceneError
+from parsph.heightmap import surface
+from parsph.kernel import H_OVER_D
+from parsph.materials import PHASE_WALL
+from parsph.scene import SIDES, Scene
+
+_CHUNK = 1 << 22  # candidates handled at once per rank (bounds temporary memory)
+
+
+def wall_layers(scene: Scene, wall) -> int:
+    """Layers of wall particles: enough to cover the kernel support 2h = 2.4 d."""
+    return wall.layers or math.ceil(2.0 * H_OVER_D - 1e-9)
+
+
+def _points_in_polygon(px, py, verts) -> np.ndarray:
+    """Even-odd rule, vectorised over points (loop over the few edges)."""
+    inside = np.zeros(px.shape, dtype=bool)
+    vx, vy = verts[:, 0], verts[:, 1]
+    n = len(verts)
+    for k in range(n):
+        x1, y1, x2, y2 = vx[k], vy[k], vx[(k + 1) % n], vy[(k + 1) % n]
+        crosses = (y1 > py) != (y2 > py)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xc = x1 + (py - y1) * (x2 - x1) / (y2 - y1)
+        inside ^= crosses & (px < xc)
+    return inside
+
+
+def _counts(lo, hi, d):
+    return np.maximum(np.floor((np.asarray(hi) - np.asarray(lo)) / d + 1e-9).astype(np.int64), 0)
+
+
+class _Lattice:
+    """A lattice (origin, counts) and an inside test for one body or wall."""
+
+    def __init__(self, origin, counts, inside):
+        self.origin = np.asarray(origin, dtype=float)
+        self.counts = np.asarray(counts, dtype=np.int64)
+        self.inside = inside
+
+    @property
+    def total(self) -> int:
+        return int(np.prod(self.counts)) if len(self.counts) else 0
+
+
+def _lattice(scene: Scene, item, is_wall: bool) -> _Lattice:
+    d, dim = scene.domain.particle_size, scene.domain.dim
+    shape = item.shape
+    if shape == "box":
+        return _Lattice(item.lo, _counts(item.lo, item.hi, d), None)
+    if shape == "tank":
+        layers = wall_layers(scene, item)
+        lo, hi = np.array(item.lo), np.array(item.hi)
+        n_in = np.round((hi - lo) / d).astype(np.int64)
+        origin = lo - layers * d
+        sides = set(item.sides)
+        names = SIDES[dim]
+
+        def inside(x):
+            keep = np.ones(len(x), dtype=bool)
+            outside_any = np.zeros(len(x), dtype=bool)
+            for ax in range(dim):
+                below, above = x[:, ax] < lo[ax], x[:, ax] > hi[ax]
+                outside_any |= below | above
+                if names[2 * ax] not in sides:
+                    keep &= ~below
+                if names[2 * ax + 1] not in sides:
+                    keep &= ~above
+            return keep & outside_any
+
+        return _Lattice(origin, n_in + 2 * layers, inside)
+    if shape == "polygon":
+        verts = np.array(item.vertices, dtype=float)
+        lo, hi = verts.min(axis=0), verts.max(axis=0)
+        return _Lattice(lo, _counts(lo, hi, d) + 1,
+                        lambda x: _points_in_polygon(x[:, 0], x[:, 1], verts))
+    if shape == "extruded_polygon":
+        verts = np.array(item.vertices, dtype=float)
+        lo, hi = verts.min(axis=0), verts.max(axis=0)
+        y0, y1 = item.extent
+        origin = (lo[0], y0, lo[1])
+        counts = (_counts(lo[0], hi[0], d) + 1, _counts(y0, y1, d), _counts(lo[1], hi[1], d) + 1)
+        return _Lattice(origin, counts, lambda x: _points_in_polygon(x[:, 0], x[:, 2], verts))
+    if shape == "heightmap":
+        grid = scene.data[item.top]
+        (x0, x1), (y0, y1) = grid.extent
+        ztop = grid.z.max()
+        if math.isfinite(item.bottom):
+            zb = item.bottom
+        elif item.depth > 0:
+            zb = grid.z.min() - item.depth
+        else:
+            raise SceneError(f"{scene.source}: body '{item.name}': a heightmap body needs "
+                             f"'bottom' (z of its base) or 'depth' (thickness below the surface)")
+        depth = item.depth
+
+        def inside(x):
+            top = surface(grid, x[:, 0], x[:, 1])
+            keep = (x[:, 2] <= top) & (x[:, 2] >= zb)
+            if depth > 0:
+                keep &= x[:, 2] >= top - depth
+            return keep
+
+        return _Lattice((x0, y0, zb), _counts((x0, y0, zb), (x1, y1, ztop), d), inside)
+    raise SceneError(f"{scene.source}: unknown shape '{shape}' for '{item.name}'")
+
+
+def estimate_count(scene: Scene) -> int:
+    """Upper bound of the particle count (lattice candidates), without generating."""
+    return sum(_lattice(scene, it, False).total for it in scene.bodies) + \
+        sum(_lattice(scene, it, True).total for it in scene.walls)
+
+
+def _generate_item(comm, scene: Scene, lat: _Lattice, first_id: int):
+    """This rank's share of one lattice: positions and ids (lattice order)."""
+    d = scene.domain.particle_size
+    total = lat.total
+    start = total * comm.rank // comm.size
+    stop = total * (comm.rank + 1) // comm.size
+    parts = []
+    for a in range(start, stop, _CHUNK):
+        idx = np.arange(a, min(a + _CHUNK, stop), dtype=np.int64)
+        multi = np.stack(np.unravel_index(idx, tuple(lat.counts)), axis=1)
+        x = lat.origin + (multi + 0.5) * d
+        if lat.inside is not None:
+            x = x[lat.inside(x)]
+        parts.append(x)
+    x = np.concatenate(parts) if parts else np.zeros((0, scene.domain.dim))
+    offset, count = global_offset(comm, len(x))
+    ids = first_id + offset + np.arange(len(x), dtype=np.int64)
+    return x, ids, count
+
+
+def generate(comm, scene: Scene) -> dict:
+    """Collective: this rank's share of all particles (before partitioning).
+
+    Returns
+    -------
+    dict
+        Core fields (see :data:`parsph.particles.CORE_FIELDS`).
+    """
+    dim = scene.domain.dim
+    d = scene.domain.particle_size
+    names = list(scene.materials)
+    mats = [scene.materials[n] for n in names]
+    fluid_mats = [m for m in mats if m.phase == 1]
+    wall_density = (fluid_mats or mats)[0].density if mats else 1000.0
+    out = {k: [] for k in ("id", "x", "v", "m", "phase", "material")}
+    next_id = 0
+    for is_wall, items in ((False, scene.bodies), (True, scene.walls)):
+        for item in items:
+            x, ids, count = _generate_item(comm, scene, _lattice(scene, item, is_wall), next_id)
+            next_id += count
+            n = len(x)
+            if is_wall:
+                density, phase, mat, vel = wall_density, PHASE_WALL, -1, ()
+            else:
+                material = scene.materials[item.material]
+                density, phase, mat, vel = (material.density, material.phase,
+                                            names.index(item.material), item.velocity)
+            out["id"].append(ids)
+            out["x"].append(x)
+            v = np.zeros((n, dim))
+            if vel:
+                v[:] = vel
+            out["v"].append(v)
+            out["m"].append(np.full(n, density * d ** dim))
+            out["phase"].append(np.full(n, phase, dtype=np.uint8))
+            out["material"].append(np.full(n, mat, dtype=np.int16))
+    dtypes = {"id": np.int64, "phase": np.uint8, "material": np.int16}
+    fields = {}
+    for k, parts in out.items():
+        if parts:
+            fields[k] = np.concatenate(parts).astype(dtypes.get(k, np.float64), copy=False)
+        else:
+            shape = (0, dim) if k in ("x", "v") else (0,)
+            fields[k] = np.zeros(shape, dtype=dtypes.get(k, np.float64))
+    return fields

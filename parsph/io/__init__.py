@@ -1,0 +1,43 @@
+"""Output of a run: particle frames (HDF5 + XDMF), per-step statistics (CSV), pictures.
+
+- :class:`~parsph.io.hdf5.FrameWriter`, :func:`~parsph.io.hdf5.read_frames`,
+  :func:`~parsph.io.hdf5.read_frame`, :func:`~parsph.io.hdf5.read_attrs`:
+  ``particles.h5``, written collectively, read serially.
+- :func:`~parsph.io.xdmf.write_xdmf`: ``particles.xdmf`` for ParaView (rank 0 only).
+- :class:`~parsph.io.stats.StatsWriter`, :func:`~parsph.io.stats.read_stats`:
+  ``stats.csv``.
+- :func:`~parsph.io.plot.plot_run`: PNG pictures of frames (``parsph plot``).
+
+Names are imported lazily, so ``import parsph.io`` loads neither h5py nor matplotlib.
+"""
+from __future__ import annotations
+
+import importlib
+
+_EXPORTS = {
+    "FrameWriter": "parsph.io.hdf5",
+    "FrameInfo": "parsph.io.hdf5",
+    "SCHEMA": "parsph.io.hdf5",
+    "read_frames": "parsph.io.hdf5",
+    "read_frame": "parsph.io.hdf5",
+    "read_attrs": "parsph.io.hdf5",
+    "write_xdmf": "parsph.io.xdmf",
+    "StatsWriter": "parsph.io.stats",
+    "read_stats": "parsph.io.stats",
+    "plot_run": "parsph.io.plot",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'parsph.io' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

@@ -1,0 +1,87 @@
+"""The step, composed from the scene: only the stages a scene calls for are built.
+
+A stage is named in :data:`STAGES` by the module and class that implement it; the module
+is imported only when a scene needs the stage. So a fluid-only scene never imports
+``parsph.solid`` and a solid-only scene never imports ``solvers`` or petsc4py.
+``parsph check`` prints :func:`plan`.
+
+Stage protocol (duck-typed)::
+
+    class MyStage:
+        name = "my_stage"
+        halo_fields = ("v",)           # fields read on halo rows (refreshed before step)
+        def __init__(self, ctx): ...   # allocate fields with ctx.particles.add_field
+        def max_dt(self, ctx) -> float # this stage's time-step limit (inf if none)
+        def step(self, ctx, dt): ...   # advance / compute on ctx.particles[:n_owned]
+        def stats(self) -> dict        # extra stats.csv columns of the last step
+"""
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass
+
+from parsph.errors import SceneError
+
+
+@dataclass(frozen=True)
+class StageSpec:
+    name: str
+    module: str
+    cls: str
+    doc: str
+    available: bool = True
+
+    def load(self):
+        """Import the implementing module (only now) and return the stage class."""
+        return getattr(importlib.import_module(self.module), self.cls)
+
+
+STAGES = {
+    "kinematics": StageSpec("kinematics", "parsph.kinematics", "Kinematics",
+                            "positions advance with the particle velocity, no force"),
+    "density": StageSpec("density", "parsph.diagnostics", "DensityStage",
+                         "SPH density summation, eq. (33) (diagnostic field rho)"),
+    "iisph": StageSpec("iisph", "parsph.fluid", "IISPH",
+                       "implicit incompressible SPH fluid, eqs. (28)-(41)", available=False),
+    "tlsph": StageSpec("tlsph", "parsph.solid", "TLSPH",
+                       "total-Lagrangian elastoplastic solid, eqs. (2)-(27)", available=False),
+}
+
+#: Infrastructure every run has, in step order (printed by `parsph check`).
+INFRASTRUCTURE = (
+    ("migrate", "move particles to their owners; re-partition (RCB) when unbalanced"),
+    ("halo", "refresh halo copies within the kernel support 2h"),
+    ("neighbours", "cell-list neighbour search, CSR lists"),
+)
+
+
+def plan(scene, strict: bool = True) -> list[StageSpec]:
+    """The physics stages of one step, in order, for this scene.
+
+    Raises
+    ------
+    SceneError
+        If a material needs a stage this version does not have (unless ``strict`` is
+        False: then such stages are listed with ``available = False``).
+    """
+    mode = scene.run.mode
+    if mode in ("geometry", "kinematic"):
+        names = ["kinematics", "density"] if mode == "kinematic" else ["density"]
+        return [STAGES[n] for n in names]
+    names = []
+    for mat_name, mat in scene.materials.items():
+        for stage in mat.stages:
+            spec = STAGES[stage]
+            if not spec.available and strict:
+                raise SceneError(
+                    f"{scene.source}: material '{mat_name}' (model '{mat.model}') needs the "
+                    f"'{stage}' stage ({spec.doc}), which this version of parsph does not have "
+                    f"yet; preview the scene with --set run.mode=geometry (or run.mode=kinematic)")
+            if stage not in names:
+                names.append(stage)
+    return [STAGES[n] for n in names]
+
+
+def uses_petsc(stages) -> bool:
+    """True if any stage solves an implicit system (the only case that imports solvers)."""
+    return any(s.name == "iisph" for s in stages)

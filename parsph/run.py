@@ -1,0 +1,270 @@
+"""The run driver: build particles, compose the step from the scene, march, write output.
+
+One step (see DESIGN.md, "One time step, as data flow")::
+
+    dt = min over stages of their limit (eq. 49), clipped to the next frame time
+    stage.step(ctx, dt) for each physics stage        (positions move last)
+    check: NaN/inf, particles leaving the domain      (collective, one message)
+    migrate to owners (re-partition when unbalanced), refresh halo, neighbour lists
+    stage.after_refresh(ctx) for diagnostic stages    (e.g. density, eq. 33)
+    stats.csv row; frame when due
+"""
+from __future__ import annotations
+
+import logging
+import math
+import os
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from decomposition import collective, raise_if_any, world
+from decomposition.box import Box
+from decomposition.exchange import migrate
+from decomposition.halo import Halo
+from decomposition.partition import RCB, imbalance
+from decomposition.reduce import global_max, global_min, global_sum
+from parsph.budget import check_budget
+from parsph.errors import NumericalError, ParsphError
+from parsph.geometry import generate
+from parsph.kernel import smoothing_length, support_radius
+from parsph.materials import PHASE_FLUID, PHASE_SOLID, PHASE_WALL
+from parsph.neighbours import build_csr
+from parsph.particles import ParticleSet
+from parsph.pipeline import INFRASTRUCTURE, plan
+
+log = logging.getLogger("parsph")
+
+
+@dataclass
+class Context:
+    """What the stages of a step see."""
+
+    scene: object
+    comm: object
+    particles: ParticleSet
+    box: Box
+    dim: int
+    d: float
+    h: float
+    radius: float
+    rcb: RCB = None
+    halo: Halo = None
+    indptr: np.ndarray = None
+    indices: np.ndarray = None
+    time: float = 0.0
+    step: int = 0
+    timers: dict = field(default_factory=dict)
+
+
+def prepare_output(comm, out: str) -> None:
+    """Collective: create ``out`` and check it is writable (on rank 0), before any work."""
+    with collective(comm):
+        if comm.rank == 0:
+            try:
+                os.makedirs(out, exist_ok=True)
+                probe = os.path.join(out, f".parsph-write-test-{os.getpid()}")
+                with open(probe, "w") as fh:
+                    fh.write("ok")
+                os.remove(probe)
+            except OSError as exc:
+                raise ParsphError(f"output directory '{out}' is not writable ({exc.strerror}); "
+                                  f"choose another with --out DIR") from None
+
+
+def _timed(ctx, name, fn, *args):
+    t0 = time.perf_counter()
+    result = fn(*args)
+    ctx.timers[name] = ctx.timers.get(name, 0.0) + time.perf_counter() - t0
+    return result
+
+
+def _check_state(ctx) -> None:
+    """Collective: stop every rank with one message on NaN/inf or a particle out of the box."""
+    p = ctx.particles
+    n = p.n_owned
+    error = None
+    for name in ("x", "v"):
+        bad = ~np.isfinite(p[name][:n]).all(axis=1)
+        if bad.any():
+            i = int(np.argmax(bad))
+            error = NumericalError(
+                f"non-finite {name} of particle id {int(p['id'][i])} at step {ctx.step}, "
+                f"t = {ctx.time:.6g} s (rank {ctx.comm.rank}); the last good frame and stats "
+                f"are kept; try a smaller time step (run.cfl or run.dt)")
+            break
+    if error is None:
+        out = ctx.box.outside(p["x"][:n])
+        if out.any():
+            i = int(np.argmax(out))
+            error = NumericalError(
+                f"particle id {int(p['id'][i])} left the domain at step {ctx.step}, "
+                f"t = {ctx.time:.6g} s, x = {np.array2string(p['x'][i], precision=4)} "
+                f"(rank {ctx.comm.rank}); enlarge domain.lo/domain.hi or check the walls")
+    raise_if_any(ctx.comm, error)
+
+
+def _distribute(ctx, force: bool = False) -> None:
+    """Migrate particles to their owners; rebuild the partition when unbalanced."""
+    p, comm = ctx.particles, ctx.comm
+    owned = p.owned_fields()
+    if ctx.box.periodic and any(ctx.box.periodic):
+        owned["x"] = ctx.box.wrap(owned["x"])
+    if force or ctx.rcb is None or \
+            imbalance(comm, p.n_owned) > ctx.scene.run.rebalance_tolerance:
+        ctx.rcb = RCB.build(comm, owned["x"], ctx.box)
+    dest = ctx.rcb.owner(owned["x"])
+    p.set_owned(migrate(comm, owned, dest))
+
+
+def refresh(ctx, force_partition: bool = False) -> None:
+    """Migrate, refresh the halo, rebuild neighbour lists (infrastructure of every step)."""
+    _timed(ctx, "migrate", _distribute, ctx, force_partition)
+    p = ctx.particles
+
+    def halo():
+        ctx.halo = Halo.build(ctx.comm, ctx.rcb, p["x"][: p.n_owned], ctx.radius, ctx.box)
+        p.set_halo(ctx.halo.exchange(p.owned_fields(), shift_fields=("x",)))
+
+    _timed(ctx, "halo", halo)
+
+    def neighbours():
+        ctx.indptr, ctx.indices = build_csr(p["x"], p.n_owned, ctx.radius)
+
+    _timed(ctx, "neighbours", neighbours)
+
+
+def _time_step(ctx, stages, next_frame: float, end: float) -> float:
+    fixed = ctx.scene.run.dt
+    dt = fixed if fixed > 0 else min([s.max_dt(ctx) for s in stages] + [math.inf])
+    if not math.isfinite(dt):
+        dt = ctx.scene.output.every
+    # Land exactly on frame times and the end time.
+    target = min(next_frame, end)
+    if ctx.time + dt > target - 1e-12 * max(1.0, target):
+        dt = target - ctx.time
+    return dt
+
+
+def _stats_row(ctx, dt, stage_objs) -> dict:
+    p, comm = ctx.particles, ctx.comm
+    n = p.n_owned
+    phase = p["phase"][:n]
+    counts = np.array([n, (phase == PHASE_SOLID).sum(), (phase == PHASE_FLUID).sum(),
+                       (phase == PHASE_WALL).sum()], dtype=np.float64)
+    v = p["v"][:n]
+    ke = 0.5 * float((p["m"][:n] * (v * v).sum(axis=1))[phase != PHASE_WALL].sum())
+    counts = global_sum(comm, counts)
+    ke = global_sum(comm, ke)
+    n_max, n_min = global_max(comm, n), global_min(comm, n)
+    row = {"step": ctx.step, "time": ctx.time, "dt": dt,
+           "n_particles": int(counts[0]), "n_solid": int(counts[1]), "n_fluid": int(counts[2]),
+           "n_wall": int(counts[3]), "n_owned_min": n_min, "n_owned_max": n_max,
+           "kinetic_energy": ke}
+    for s in stage_objs:
+        row.update(s.stats())
+    for name, seconds in ctx.timers.items():
+        row[f"wall_s_{name}"] = seconds
+    return row
+
+
+def stats_columns(stages) -> list[str]:
+    """stats.csv columns: counts, energy, each stage's own columns, wall seconds per stage."""
+    cols = ["step", "time", "dt", "n_particles", "n_solid", "n_fluid", "n_wall",
+            "n_owned_min", "n_owned_max", "kinetic_energy"]
+    cols += [c for s in stages for c in getattr(s, "stats_columns", ())]
+    cols += [f"wall_s_{name}" for name, _ in INFRASTRUCTURE]
+    cols += [f"wall_s_{s.name}" for s in stages] + ["wall_s_output"]
+    return cols
+
+
+def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None) -> dict:
+    """Run a validated scene; write ``out/particles.h5``, ``.xdmf`` and ``stats.csv``.
+
+    Collective over ``comm`` (default: the world). Returns a summary (steps, time, wall
+    seconds, particle count).
+    """
+    from parsph.io import FrameWriter, StatsWriter
+    from parsph.log import Progress
+
+    comm = comm or world()
+    wall0 = time.perf_counter()
+    specs = plan(scene)
+    check_budget(comm, scene, specs)
+    prepare_output(comm, out)
+    dim, d = scene.domain.dim, scene.domain.particle_size
+    h = smoothing_length(d)
+    box = Box(tuple(scene.domain.lo), tuple(scene.domain.hi), tuple(scene.domain.periodic))
+    particles = ParticleSet(dim, generate(comm, scene))
+    ctx = Context(scene=scene, comm=comm, particles=particles, box=box, dim=dim, d=d, h=h,
+                  radius=support_radius(h))
+    if any(s.name == "iisph" for s in specs):  # only then is petsc4py imported
+        import solvers
+
+        solvers.init(list(petsc_args))
+    stages = [spec.load()(ctx) for spec in specs]
+    refresh(ctx, force_partition=True)
+    for s in stages:
+        if hasattr(s, "after_refresh"):
+            _timed(ctx, s.name, s.after_refresh, ctx)
+    _check_state(ctx)
+    n_total = int(global_sum(comm, particles.n_owned))
+    log.info("scene '%s': %d particles on %d rank(s), stages: %s", scene.name, n_total,
+             comm.size, ", ".join(s.name for s in specs))
+    h5 = os.path.join(out, "particles.h5")
+    xdmf = os.path.join(out, "particles.xdmf")
+    frame_fields = ("id", "x", "v", "phase", "eps_p", "p", "porosity", "rho")
+    attrs = {"scene": scene.name, "particle_size": d, "ranks": comm.size,
+             "scene_source": scene.source}
+
+    def write_frame():
+        t0 = time.perf_counter()
+        fields = {k: particles[k][: particles.n_owned] for k in frame_fields if k in particles}
+        writer.write_frame(ctx.step, ctx.time, fields)  # rank 0 also rewrites the XDMF
+        ctx.timers["output"] = ctx.timers.get("output", 0.0) + time.perf_counter() - t0
+
+    end = scene.run.end_time
+    every = scene.output.every
+    show = scene.output.progress if progress is None else progress
+    bar = Progress(end, enabled=show and comm.rank == 0)
+    with FrameWriter(h5, comm, dim, attrs=attrs, xdmf=xdmf) as writer, \
+            StatsWriter(os.path.join(out, "stats.csv"), stats_columns(stages),
+                        enabled=comm.rank == 0) as stats:
+        write_frame()
+        next_frame = every
+        last_frame_step = 0
+        max_steps = scene.run.max_steps
+        while scene.run.mode != "geometry" and ctx.time < end - 1e-12 * end:
+            if max_steps and ctx.step >= max_steps:
+                break
+            for name in ctx.timers:
+                ctx.timers[name] = 0.0
+            dt = _time_step(ctx, stages, next_frame, end)
+            for s in stages:
+                if hasattr(s, "step"):
+                    _timed(ctx, s.name, s.step, ctx, dt)
+            ctx.time += dt
+            ctx.step += 1
+            _check_state(ctx)
+            refresh(ctx)
+            for s in stages:
+                if hasattr(s, "after_refresh"):
+                    _timed(ctx, s.name, s.after_refresh, ctx)
+            if ctx.time >= next_frame - 1e-9 * every:
+                write_frame()
+                last_frame_step = ctx.step
+                next_frame += every
+            stats.write(_stats_row(ctx, dt, stages))
+            bar.update(ctx.time, ctx.step)
+        if ctx.step != last_frame_step:
+            write_frame()
+    bar.close()
+    memory = global_sum(comm, particles.nbytes() + ctx.indptr.nbytes + ctx.indices.nbytes)
+    pairs = global_sum(comm, len(ctx.indices))
+    wall = time.perf_counter() - wall0
+    log.info("done: %d steps to t = %.6g s in %.2f s wall; output in %s", ctx.step, ctx.time,
+             wall, out)
+    return {"steps": ctx.step, "time": ctx.time, "wall_s": wall, "particles": n_total, "out": out,
+            "bytes_per_particle": memory / max(n_total, 1),
+            "neighbours_per_particle": pairs / max(n_total, 1)}

@@ -1,0 +1,334 @@
+"""Scenes: TOML files validated into frozen dataclasses before anything is allocated.
+
+A scene names materials, bodies (simple shapes filled with particles), walls (fixed
+ghost-particle layers), loading and output. Every key can be overridden on the command
+line with ``--set dotted.key=value`` (the value is read as a TOML value; list entries are
+addressed as ``bodies.0.lo``). See ``docs/scenes.md`` for every key.
+"""
+from __future__ import annotations
+
+import math
+import os
+import tomllib
+from dataclasses import dataclass, field, replace
+from importlib import resources
+
+import numpy as np
+
+from parsph import schema
+from parsph.errors import SceneError
+from parsph.materials import build_material
+from parsph.schema import spec
+
+SIDES = {2: ("left", "right", "bottom", "top"),
+         3: ("left", "right", "front", "back", "bottom", "top")}
+
+
+@dataclass(frozen=True)
+class SceneInfo:
+    name: str = spec(doc="scene name")
+    description: str = spec("", doc="one line shown by `parsph scenes`")
+
+
+@dataclass(frozen=True)
+class Domain:
+    dim: int = spec(doc="2 or 3", ge=2, le=3)
+    particle_size: float = spec(doc="particle spacing d (m); h = 1.2 d", gt=0.0)
+    lo: tuple[float, ...] = spec(doc="lower corner of the domain (m)")
+    hi: tuple[float, ...] = spec(doc="upper corner of the domain (m)")
+    periodic: tuple[bool, ...] = spec((), doc="periodic axes, e.g. [true, false]")
+
+
+@dataclass(frozen=True)
+class Run:
+    end_time: float = spec(doc="simulated end time (s)", gt=0.0)
+    mode: str = spec("physics", doc="physics | kinematic (move with initial velocity, no "
+                     "forces) | geometry (build, decompose, write frame 0, stop)",
+                     choices=("physics", "kinematic", "geometry"))
+    dt: float = spec(0.0, doc="fixed time step (s); 0 = CFL step, eq. (49)", ge=0.0)
+    cfl: float = spec(0.1, doc="CFL coefficient for moving particles, eq. (49)", gt=0.0, le=1.0)
+    max_steps: int = spec(0, doc="stop after this many steps (0 = no limit)", ge=0)
+    rebalance_tolerance: float = spec(1.2, doc="re-partition when max/mean owned > this", ge=1.0)
+    max_particles: int = spec(200_000_000, doc="refuse scenes with more particles", gt=0)
+
+
+@dataclass(frozen=True)
+class Output:
+    every: float = spec(doc="simulated seconds between frames", gt=0.0)
+    checkpoint_every: float = spec(0.0, doc="simulated seconds between checkpoints (0 = at end)",
+                                   ge=0.0)
+    progress: bool = spec(True, doc="progress bar on rank 0")
+
+
+@dataclass(frozen=True)
+class Gravity:
+    g: tuple[float, ...] = spec((), doc="gravity vector (m/s^2); default -9.81 on the last axis")
+
+
+@dataclass(frozen=True)
+class Body:
+    name: str = spec(doc="body name")
+    material: str = spec(doc="a key of [materials]")
+    shape: str = spec(doc="box | polygon (2D) | extruded_polygon (3D) | heightmap (3D)",
+                      choices=("box", "polygon", "extruded_polygon", "heightmap"))
+    lo: tuple[float, ...] = spec((), doc="box: lower corner (m)")
+    hi: tuple[float, ...] = spec((), doc="box: upper corner (m)")
+    vertices: tuple[tuple[float, ...], ...] = spec((), doc="polygon: [[x, y], ...] (m); "
+                                                  "extruded_polygon: [[x, z], ...]")
+    extent: tuple[float, ...] = spec((), doc="extruded_polygon: [y0, y1] (m)")
+    top: str = spec("", doc="heightmap: ESRI ASCII grid of the top surface z(x, y)")
+    bottom: float = spec(-math.inf, doc="heightmap: z of the bottom (m)")
+    depth: float = spec(0.0, doc="heightmap: thickness below the top surface (m), 0 = to bottom",
+                        ge=0.0)
+    velocity: tuple[float, ...] = spec((), doc="initial velocity (m/s)")
+
+
+@dataclass(frozen=True)
+class Wall:
+    name: str = spec(doc="wall name")
+    shape: str = spec(doc="tank (layers around an inner box) | box (filled) | polygon (2D)",
+                      choices=("tank", "box", "polygon"))
+    lo: tuple[float, ...] = spec((), doc="tank: inner lower corner; box: lower corner (m)")
+    hi: tuple[float, ...] = spec((), doc="tank: inner upper corner; box: upper corner (m)")
+    sides: tuple[str, ...] = spec((), doc="tank: which sides have a wall (left, right, front, "
+                                  "back, bottom, top)")
+    vertices: tuple[tuple[float, ...], ...] = spec((), doc="polygon: [[x, y], ...] (m)")
+    layers: int = spec(0, doc="layers of wall particles (0 = enough for the kernel support)",
+                       ge=0)
+    slip: str = spec("no_slip", doc="no_slip | free_slip", choices=("no_slip", "free_slip"))
+
+
+@dataclass(frozen=True)
+class Scene:
+    scene: SceneInfo
+    domain: Domain
+    run: Run
+    output: Output
+    gravity: Gravity = field(default_factory=Gravity)
+    bodies: tuple[Body, ...] = spec((), doc="[[bodies]] tables")
+    walls: tuple[Wall, ...] = spec((), doc="[[walls]] tables")
+    materials: dict = field(default_factory=dict, init=False, compare=False)
+    source: str = field(default="", init=False, compare=False)
+    data: dict = field(default_factory=dict, init=False, compare=False, repr=False)
+
+    @property
+    def name(self) -> str:
+        return self.scene.name
+
+
+# --------------------------------------------------------------------------- loading
+
+def builtin_names() -> list[str]:
+    """Names of the built-in scenes (``parsph/scenes/*.toml``)."""
+    root = resources.files("parsph") / "scenes"
+    return sorted(p.name[:-5] for p in root.iterdir() if p.name.endswith(".toml"))
+
+
+def builtin_path(name: str) -> str:
+    return str(resources.files("parsph") / "scenes" / f"{name}.toml")
+
+
+def resolve(scene: str) -> str:
+    """A built-in scene name or a path to a TOML file → the file's path."""
+    if os.path.isfile(scene):
+        return scene
+    if scene in builtin_names():
+        return builtin_path(scene)
+    if scene.endswith(".toml") or os.sep in scene:
+        raise SceneError(f"scene file '{scene}' does not exist; give the path of a TOML scene file "
+                         f"or a built-in scene name (`parsph scenes` lists them)")
+    raise SceneError(f"unknown scene '{scene}'; built-in scenes: {', '.join(builtin_names())} "
+                     f"(or give the path of a TOML scene file)")
+
+
+def parse_value(text: str):
+    """A ``--set`` value read as TOML (numbers, booleans, lists, quoted strings);
+    anything else is taken as a bare string."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def apply_overrides(raw: dict, overrides) -> dict:
+    """Apply ``dotted.key=value`` strings to the raw TOML dict (in place, returned)."""
+    for item in overrides or ():
+        if "=" not in item:
+            raise SceneError(f"--set {item!r}: expected dotted.key=value, e.g. "
+                             f"--set domain.particle_size=0.01")
+        key, text = item.split("=", 1)
+        parts = [p for p in key.strip().split(".")]
+        if not all(parts):
+            raise SceneError(f"--set {item!r}: empty key part in '{key}'")
+        node = raw
+        for i, part in enumerate(parts[:-1]):
+            where = ".".join(parts[: i + 1])
+            if isinstance(node, list):
+                if not part.isdigit() or int(part) >= len(node):
+                    raise SceneError(f"--set {key}: '{where}' is not an entry of a list of "
+                                     f"{len(node)} (use an index 0..{len(node) - 1})")
+                node = node[int(part)]
+            else:
+                node = node.setdefault(part, {})
+            if not isinstance(node, (dict, list)):
+                raise SceneError(f"--set {key}: '{where}' is a value, not a table")
+        last = parts[-1]
+        value = parse_value(text.strip())
+        if isinstance(node, list):
+            if not last.isdigit() or int(last) >= len(node):
+                raise SceneError(f"--set {key}: index '{last}' out of range")
+            node[int(last)] = value
+        else:
+            node[last] = value
+    return raw
+
+
+def load_scene(scene: str, overrides=()) -> Scene:
+    """Read, override and validate a scene (a built-in name or a TOML path).
+
+    Raises
+    ------
+    SceneError
+        For any problem, with the file and the dotted key in the message.
+    """
+    path = resolve(scene)
+    try:
+        with open(path, "rb") as fh:
+            text = fh.read()
+    except OSError as exc:
+        raise SceneError(f"cannot read scene file '{path}': {exc.strerror}") from None
+    if not text.strip():
+        raise SceneError(f"scene file '{path}' is empty; a scene needs at least [scene], [domain], "
+                         f"[run] and [output] tables (see `parsph scenes` for examples)")
+    try:
+        raw = tomllib.loads(text.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise SceneError(f"scene file '{path}' is not UTF-8 text; is it really a TOML file?") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"scene file '{path}' is not valid TOML: {exc}") from None
+    apply_overrides(raw, overrides)
+    source = path + (" (with --set " + " ".join(overrides) + ")" if overrides else "")
+    materials_raw = raw.pop("materials", {})
+    for key in ("scene", "domain", "run", "output"):
+        if key not in raw:
+            raise SceneError(f"{source}: table [{key}] is missing; every scene has [scene], "
+                             f"[domain], [run] and [output]")
+    scn = schema.build(Scene, raw, "", source)
+    if not isinstance(materials_raw, dict):
+        raise SceneError(f"{source}: key 'materials': expected tables [materials.NAME]")
+    materials = {name: build_material(name, tbl, source) for name, tbl in materials_raw.items()}
+    object.__setattr__(scn, "materials", materials)
+    object.__setattr__(scn, "source", os.path.abspath(path))
+    scn = _normalise(scn, source)
+    _cross_check(scn, source)
+    object.__setattr__(scn, "data", _load_data(scn, source))
+    return scn
+
+
+def _normalise(scn: Scene, source: str) -> Scene:
+    dim = scn.domain.dim
+    dom = scn.domain
+    if not dom.periodic:
+        dom = replace(dom, periodic=(False,) * dim)
+    g = scn.gravity
+    if not g.g:
+        g = Gravity(g=(0.0,) * (dim - 1) + (-9.81,))
+    new = replace(scn, domain=dom, gravity=g)
+    for name in ("materials", "source", "data"):
+        object.__setattr__(new, name, getattr(scn, name))
+    return new
+
+
+def _err(source, key, message):
+    raise SceneError(f"{source}: key '{key}': {message}")
+
+
+def _check_vec(source, key, vec, dim, required=True):
+    if not vec and not required:
+        return
+    if len(vec) != dim:
+        _err(source, key, f"needs {dim} numbers (domain.dim = {dim}), got {len(vec)}")
+
+
+def _cross_check(scn: Scene, source: str) -> None:
+    dim, dom = scn.domain.dim, scn.domain
+    _check_vec(source, "domain.lo", dom.lo, dim)
+    _check_vec(source, "domain.hi", dom.hi, dim)
+    _check_vec(source, "domain.periodic", dom.periodic, dim)
+    _check_vec(source, "gravity.g", scn.gravity.g, dim)
+    lo, hi = np.array(dom.lo), np.array(dom.hi)
+    if np.any(hi <= lo):
+        _err(source, "domain.hi", f"must be above domain.lo on every axis ({dom.lo} vs {dom.hi})")
+    if np.any((hi - lo) < dom.particle_size):
+        _err(source, "domain.particle_size", f"{dom.particle_size} m is larger than the domain")
+    if not scn.bodies and not scn.walls:
+        _err(source, "bodies", "the scene has no bodies and no walls: nothing to simulate")
+    if scn.output.every > scn.run.end_time and scn.run.mode != "geometry":
+        _err(source, "output.every", f"{scn.output.every} s is longer than run.end_time "
+             f"{scn.run.end_time} s: no frame would be written after the first")
+    names = set()
+    for i, body in enumerate(scn.bodies):
+        key = f"bodies[{i}]"
+        if body.name in names:
+            _err(source, f"{key}.name", f"duplicate body/wall name '{body.name}'")
+        names.add(body.name)
+        if body.material not in scn.materials:
+            known = ", ".join(sorted(scn.materials)) or "none defined"
+            _err(source, f"{key}.material", f"no material '{body.material}' in [materials] "
+                 f"(known: {known})")
+        _check_vec(source, f"{key}.velocity", body.velocity, dim, required=False)
+        _check_shape(source, key, body.shape, body, dim, lo, hi)
+    for i, wall in enumerate(scn.walls):
+        key = f"walls[{i}]"
+        if wall.name in names:
+            _err(source, f"{key}.name", f"duplicate body/wall name '{wall.name}'")
+        names.add(wall.name)
+        _check_shape(source, key, wall.shape, wall, dim, lo, hi)
+        if wall.shape == "tank":
+            if not wall.sides:
+                _err(source, f"{key}.sides", f"a tank needs sides, some of {SIDES[dim]}")
+            bad = [s for s in wall.sides if s not in SIDES[dim]]
+            if bad:
+                _err(source, f"{key}.sides", f"unknown side {bad[0]!r}; in {dim}D the sides are "
+                     f"{', '.join(SIDES[dim])}")
+
+
+def _check_shape(source, key, shape, item, dim, lo, hi):
+    if shape in ("box", "tank"):
+        _check_vec(source, f"{key}.lo", item.lo, dim)
+        _check_vec(source, f"{key}.hi", item.hi, dim)
+        if np.any(np.array(item.hi) <= np.array(item.lo)):
+            _err(source, f"{key}.hi", f"must be above {key}.lo on every axis")
+        if shape == "box" and (np.any(np.array(item.lo) < lo) or np.any(np.array(item.hi) > hi)):
+            _err(source, f"{key}.lo", f"the box {item.lo}..{item.hi} is not inside the domain "
+                 f"{tuple(lo)}..{tuple(hi)}; enlarge domain.lo/domain.hi")
+    elif shape in ("polygon", "extruded_polygon"):
+        if (shape == "polygon") != (dim == 2):
+            _err(source, f"{key}.shape", f"'{shape}' is for {'2D' if shape == 'polygon' else '3D'} "
+                 f"scenes (domain.dim = {dim})")
+        if len(item.vertices) < 3:
+            _err(source, f"{key}.vertices", "a polygon needs at least 3 vertices")
+        for j, v in enumerate(item.vertices):
+            if len(v) != 2:
+                _err(source, f"{key}.vertices[{j}]", f"a vertex is [x, {'y' if dim == 2 else 'z'}], "
+                     f"got {list(v)}")
+        if shape == "extruded_polygon" and (len(item.extent) != 2 or item.extent[1] <= item.extent[0]):
+            _err(source, f"{key}.extent", "needs [y0, y1] with y1 > y0")
+    elif shape == "heightmap":
+        if dim != 3:
+            _err(source, f"{key}.shape", "a heightmap body is for 3D scenes")
+        if not item.top:
+            _err(source, f"{key}.top", "a heightmap body needs the path of its top-surface grid")
+
+
+def _load_data(scn: Scene, source: str) -> dict:
+    """Read the data files a scene refers to (height maps), relative to the scene file."""
+    from parsph.heightmap import read_ascii_grid
+
+    data = {}
+    base = os.path.dirname(scn.source)
+    for i, body in enumerate(scn.bodies):
+        if body.shape == "heightmap":
+            path = body.top if os.path.isabs(body.top) else os.path.join(base, body.top)
+            data[body.top] = read_ascii_grid(path, key=f"bodies[{i}].top", source=source)
+    return data

@@ -1,0 +1,23 @@
+"""Total-Lagrangian SPH solid: finite-strain elastoplasticity (paper section 3).
+
+Constitutive models act on one material point and are plain numba functions, so they
+can be tested alone and called from the particle loops:
+
+- :mod:`parsph.solid.tensor` -- 3x3 helpers: symmetric eigen-decomposition (closed
+  form with a Jacobi fall-back), tensor logarithm/exponential of symmetric
+  positive-definite matrices, determinant, inverse.
+- :mod:`parsph.solid.hencky` -- Hencky elasticity on the logarithmic strain and the
+  elastic trial state, eqs. (15)-(16), (20)-(27).
+- :mod:`parsph.solid.drucker_prager` -- Drucker-Prager return map with cohesion
+  softening, Appendix A / Algorithm 1.
+- :mod:`parsph.solid.cam_clay` -- modified Cam-Clay return map (Newton-Raphson),
+  Appendix B / Algorithm 2.
+
+Sign convention: tension positive for the Kirchhoff stress tau, the Cauchy stress sigma
+and the nominal stress P everywhere outside the Drucker-Prager and Cam-Clay modules;
+soil-mechanics quantities (p' compression positive, p_c > 0) live only inside those two
+modules. See ``docs/constitutive.md``.
+
+Importing this package imports nothing heavy; the submodules compile on first call
+(``cache=True``).
+"""

@@ -1,0 +1,467 @@
+"""A distributed sparse linear system ``A x = b`` solved with a PETSc KSP.
+
+The system knows no particles: the caller hands in global (row, column, value) triplets
+and right-hand sides as local numpy arrays, and gets local numpy arrays back. The rows
+of a rank are one contiguous block of the global numbering
+(:func:`decomposition.numbering.global_offset`), which is the layout PETSc's MPIAIJ
+matrices and MPI vectors use.
+
+Notes
+-----
+Assembly is bulk, never entry by entry. petsc4py 3.18 has no COO interface
+(``Mat.setPreallocationCOO`` / ``setValuesCOO`` arrive in later releases), so the
+triplets are turned into a CSR block of the owned rows with numpy (one sort, duplicates
+summed with ``np.bincount``). A new sparsity pattern builds a new matrix whose
+preallocation is computed from that CSR block (``MatMPIAIJSetPreallocationCSR``: exact
+diagonal and off-diagonal counts, values inserted in the same call). The same pattern
+again only rewrites the values (``Mat.setValuesCSR`` into the existing nonzeros, then
+assembly), and the KSP is handed the same operator, so the preconditioner is rebuilt on
+the new values without any reallocation. When the triplet rows and columns are the very
+same arrays as last time (the usual case from step to step), even the sort is skipped.
+"""
+from __future__ import annotations
+
+import logging
+import time
+
+import numpy as np
+
+from decomposition.numbering import global_offset
+from parsph.errors import NumericalError
+from solvers import petsc_env
+
+log = logging.getLogger(__name__)
+
+#: Largest global index a 32-bit ``PetscInt`` can hold.
+_INT32_MAX = 2**31 - 1
+
+#: Krylov methods that need a symmetric operator (used for the default of ``symmetric``).
+_SYMMETRIC_KSP = ("cg", "minres", "cr", "pipecg", "pipecr", "groppcg", "nash", "stcg")
+
+
+class SolverError(NumericalError):
+    """A linear solve did not converge; the message names the system, reason and what to try."""
+
+
+def _reason_names(PETSc) -> dict[int, str]:
+    """``KSP.ConvergedReason`` value → name (aliases resolved to the first name in order)."""
+    names: dict[int, str] = {}
+    reasons = PETSc.KSP.ConvergedReason
+    for name in sorted(dir(reasons)):
+        value = getattr(reasons, name)
+        if name.isupper() and isinstance(value, int):
+            names.setdefault(int(value), name)
+    return names
+
+
+def _agree(comm, error: tuple[type, str] | None, flag: bool = False) -> bool:
+    """Collective: raise one rank's error on every rank, else return ``any(flag)``.
+
+    ``error`` is ``(exception type, message)`` or None. The error raised everywhere is
+    the lowest failing rank's, with the same type, so that no rank is left waiting in a
+    later collective while another one has given up.
+    """
+    gathered = comm.allgather((None if error is None else (error[0].__name__, error[1]), bool(flag)))
+    for rank, (item, _) in enumerate(gathered):
+        if item is not None:
+            name, message = item
+            cls = SolverError if name == SolverError.__name__ else ValueError
+            raise cls(f"rank {rank}: {message}")
+    return any(changed for _, changed in gathered)
+
+
+def _normalise_prefix(prefix: str) -> str:
+    """``"ppe"`` and ``"-ppe_"`` both become ``"ppe_"``; ``""`` stays empty."""
+    prefix = str(prefix).lstrip("-")
+    if prefix and not prefix.endswith("_"):
+        prefix += "_"
+    return prefix
+
+
+class LinearSystem:
+    """A sparse system with an options prefix, assembled in bulk and solved by a KSP.
+
+    Parameters
+    ----------
+    comm : mpi4py.MPI.Comm
+        Communicator of the system; every method is collective on it.
+    prefix : str
+        PETSc options prefix, e.g. ``"ppe_"`` or ``"visc_"`` (a missing trailing ``_``
+        is added). Options ``-{prefix}ksp_*`` and ``-{prefix}pc_*`` override the
+        defaults below.
+    n_local_rows : int
+        Number of points (block rows) this rank owns, ≥ 0. The rank owns
+        ``n_local_rows * block_size`` scalar unknowns.
+    block_size : int, optional
+        Scalar unknowns per point: 1 for the pressure Poisson equation, ``dim`` for the
+        vector unknowns of the viscous predictor. Unknowns are interleaved by point:
+        component ``c`` of global point ``p`` is global row ``p * block_size + c``.
+    ksp_type : str, optional
+        Default Krylov method (``"cg"``; ``"gmres"`` for non-symmetric operators).
+    pc_type : str, optional
+        Default preconditioner (``"hypre"`` = BoomerAMG). If this PETSc build has no
+        hypre, ``"gamg"`` is used instead and a warning logged.
+    rtol, atol : float, optional
+        Default relative and absolute tolerances of the KSP convergence test
+        (dimensionless and in the units of the residual norm).
+    max_it : int, optional
+        Default maximum number of iterations.
+    symmetric : bool or None, optional
+        Declare the operator symmetric (sets ``MAT_SYMMETRIC`` and
+        ``MAT_SYMMETRY_ETERNAL``, and makes the constant null space also the transpose
+        null space). None means True for symmetric Krylov methods (``cg``, ``minres``…)
+        and False otherwise. It is a promise, not checked.
+
+    Attributes
+    ----------
+    offset : int
+        First global scalar row of this rank (a multiple of ``block_size``).
+    n_local : int
+        Scalar unknowns of this rank, ``n_local_rows * block_size``.
+    n_global : int
+        Scalar unknowns of all ranks.
+    n_builds : int
+        How many times a matrix was (re)built because the sparsity pattern changed.
+
+    Notes
+    -----
+    Rank ``r`` owns global rows ``offset … offset + n_local − 1`` where ``offset`` is
+    the exclusive prefix sum of ``n_local`` over ranks
+    (:func:`decomposition.numbering.global_offset`); a rank owning no row takes part in
+    every call. Defaults are set in code first, then the options prefix, then
+    ``KSP.setFromOptions()``, so the options database wins, for example::
+
+        -ppe_ksp_rtol 1e-10 -ppe_ksp_monitor -ppe_pc_hypre_boomeramg_strong_threshold 0.5
+
+    The object owns its PETSc objects: call :meth:`destroy` (or use it as a context
+    manager) on every rank.
+    """
+
+    def __init__(
+        self,
+        comm,
+        prefix: str,
+        n_local_rows: int,
+        block_size: int = 1,
+        ksp_type: str = "cg",
+        pc_type: str = "hypre",
+        rtol: float = 1e-8,
+        atol: float = 1e-50,
+        max_it: int = 1000,
+        symmetric: bool | None = None,
+    ):
+        PETSc = petsc_env.petsc()
+        self._PETSc = PETSc
+        self.comm = comm
+        self.prefix = _normalise_prefix(prefix)
+        self.block_size = int(block_size)
+        self.n_local_rows = int(n_local_rows)
+        if self.block_size < 1 or self.n_local_rows < 0:
+            raise ValueError(
+                f"{self.prefix}: need block_size >= 1 and n_local_rows >= 0, "
+                f"got block_size={block_size}, n_local_rows={n_local_rows}"
+            )
+        self.n_local = self.n_local_rows * self.block_size
+        self.offset, self.n_global = global_offset(comm, self.n_local)
+        if self.n_global == 0:
+            raise ValueError(f"{self.prefix}: the system has no unknowns on any rank")
+        if np.dtype(PETSc.IntType).itemsize == 4 and self.n_global > _INT32_MAX:
+            raise ValueError(
+                f"{self.prefix}: {self.n_global} unknowns exceed this PETSc's 32-bit indices; "
+                "use a PETSc built with --with-64-bit-indices or a coarser particle size"
+            )
+        self.symmetric = ksp_type in _SYMMETRIC_KSP if symmetric is None else bool(symmetric)
+        self.n_builds = 0
+        self._reasons = _reason_names(PETSc)
+
+        sizes = (self.n_local, self.n_global)
+        self._b = PETSc.Vec().createMPI(sizes, bsize=self.block_size, comm=comm)
+        self._x = self._b.duplicate()
+        self._mat = None
+        self._nullspace = None
+        self._pattern = None  # (keys, inverse, rows, cols, indptr, indices) of the last assembly
+        self._ksp = self._create_ksp(ksp_type, pc_type, rtol, atol, max_it)
+
+    # -- set-up ---------------------------------------------------------------------
+
+    def _create_ksp(self, ksp_type, pc_type, rtol, atol, max_it):
+        """Defaults in code, then the options prefix, then ``setFromOptions``."""
+        PETSc = self._PETSc
+        ksp = PETSc.KSP().create(comm=self.comm)
+        ksp.setType(ksp_type)
+        if pc_type == "hypre" and not petsc_env.has_hypre():
+            log.warning("%s: this PETSc has no hypre; using -%spc_type gamg", self.prefix, self.prefix)
+            pc_type = "gamg"
+        pc = ksp.getPC()
+        pc.setType(pc_type)
+        if pc_type == "hypre":
+            pc.setHYPREType("boomeramg")
+        ksp.setTolerances(rtol=rtol, atol=atol, max_it=max_it)
+        ksp.setOptionsPrefix(self.prefix)
+        ksp.setFromOptions()
+        return ksp
+
+    @property
+    def mat(self):
+        """The current ``PETSc.Mat`` (None before the first :meth:`assemble`)."""
+        return self._mat
+
+    @property
+    def ksp(self):
+        """The ``PETSc.KSP`` (type, tolerances and preconditioner after the options)."""
+        return self._ksp
+
+    @property
+    def owned_range(self) -> tuple[int, int]:
+        """``(first, last + 1)`` global scalar rows owned by this rank."""
+        return self.offset, self.offset + self.n_local
+
+    def set_nullspace_constant(self) -> None:
+        """Collective: declare the constant vector the null space of the operator.
+
+        For a singular operator such as a pure Neumann pressure Poisson problem (not
+        parsph's usual case: a free surface gives Dirichlet rows). The null space is
+        attached to the current matrix and to every matrix built later; for a
+        symmetric system it is also the transpose null space, which makes PETSc
+        remove the constant from the right-hand side so that it is consistent.
+        """
+        if self._nullspace is None:
+            self._nullspace = self._PETSc.NullSpace().create(constant=True, comm=self.comm)
+        if self._mat is not None:
+            self._attach_nullspace(self._mat)
+
+    def _attach_nullspace(self, mat) -> None:
+        mat.setNullSpace(self._nullspace)
+        if self.symmetric:
+            mat.setTransposeNullSpace(self._nullspace)
+
+    # -- assembly -------------------------------------------------------------------
+
+    def _check_triplets(self, rows, cols, values) -> tuple[type, str] | None:
+        """What is wrong with this rank's triplets, or None."""
+        if not (rows.ndim == cols.ndim == values.ndim == 1) or not (rows.size == cols.size == values.size):
+            return ValueError, (
+                f"{self.prefix}: rows, cols and values must be 1-D arrays of one length, got shapes "
+                f"{rows.shape}, {cols.shape}, {values.shape}"
+            )
+        if rows.dtype.kind not in "iu" or cols.dtype.kind not in "iu":
+            return ValueError, (
+                f"{self.prefix}: rows and cols must be integer arrays (int32 or int64), got "
+                f"{rows.dtype} and {cols.dtype}"
+            )
+        first, stop = self.owned_range
+        bad = (rows < first) | (rows >= stop)
+        if bad.any():
+            owned = f"rows {first}..{stop - 1}" if stop > first else "no rows"
+            return ValueError, (
+                f"{self.prefix}: {int(bad.sum())} triplets have rows in {int(rows[bad].min())}.."
+                f"{int(rows[bad].max())}, but this rank owns {owned} of {self.n_global}; assemble "
+                "only owned rows (global row = offset + local index, see global_offset)"
+            )
+        bad = (cols < 0) | (cols >= self.n_global)
+        if bad.any():
+            return ValueError, (
+                f"{self.prefix}: {int(bad.sum())} triplets have columns in {int(cols[bad].min())}.."
+                f"{int(cols[bad].max())}, outside the global range 0..{self.n_global - 1}"
+            )
+        if not np.isfinite(values).all():
+            return SolverError, (
+                f"{self.prefix}: {int((~np.isfinite(values)).sum())} matrix values are NaN or "
+                "infinite; the fields the matrix is built from have blown up: try a smaller time step"
+            )
+        return None
+
+    def _pattern_of(self, rows, cols):
+        """``(changed, keys, inverse)``: the sorted unique (local row, col) keys of the triplets."""
+        last = self._pattern
+        if (
+            last is not None
+            and rows.shape == last["rows"].shape
+            and np.array_equal(rows, last["rows"])
+            and np.array_equal(cols, last["cols"])
+        ):
+            return False, last["keys"], last["inverse"]
+        key = (rows.astype(np.int64) - self.offset) * self.n_global + cols.astype(np.int64)
+        keys, inverse = np.unique(key, return_inverse=True)
+        changed = last is None or not np.array_equal(keys, last["keys"])
+        return changed, keys, inverse.reshape(-1)
+
+    def assemble(self, rows, cols, values) -> None:
+        """Collective: set the matrix from global triplets; duplicates are summed.
+
+        Parameters
+        ----------
+        rows, cols : numpy.ndarray of int32 or int64, shape (nnz,)
+            Global scalar row and column indices. Every row must be owned by this rank
+            (see :attr:`owned_range`); columns may belong to any rank.
+        values : numpy.ndarray of float64, shape (nnz,)
+            Matrix entries (units of the equation). Entries with the same (row, col)
+            are added together.
+
+        Raises
+        ------
+        ValueError
+            On every rank, if some rank passes a row it does not own (the message
+            names the offending row range), a column outside the global range, or
+            arrays of different lengths.
+        SolverError
+            On every rank, if some rank passes NaN or infinite values.
+
+        Notes
+        -----
+        If the pattern (the set of distinct (row, col) pairs) is the same on every rank
+        as in the previous call, the matrix object is kept and only its values are
+        rewritten; if it changed on any rank, a new matrix is built on all ranks and the
+        KSP is reset onto it. One ``allgather`` of a flag decides this and agrees on
+        errors.
+        """
+        rows = np.asarray(rows)
+        cols = np.asarray(cols)
+        values = np.asarray(values, dtype=np.float64)
+        error = self._check_triplets(rows, cols, values)
+        changed, keys, inverse = (False, None, None) if error else self._pattern_of(rows, cols)
+        rebuild = _agree(self.comm, error, changed) or self._mat is None
+        data = np.bincount(inverse, weights=values, minlength=keys.size).astype(np.float64, copy=False)
+        if rebuild:
+            self._build(rows, cols, keys, inverse, data)
+        else:
+            pattern = self._pattern
+            if pattern["inverse"] is not inverse:  # same pattern reached through other triplets
+                pattern.update(rows=rows.copy(), cols=cols.copy(), inverse=inverse)
+            self._mat.setValuesCSR(pattern["indptr"], pattern["indices"], data,
+                                   addv=self._PETSc.InsertMode.INSERT_VALUES)
+            self._mat.assemble()
+        self._ksp.setOperators(self._mat)
+
+    def _build(self, rows, cols, keys, inverse, data) -> None:
+        """Collective: a new matrix preallocated exactly from the CSR block of the owned rows."""
+        PETSc = self._PETSc
+        int_type = PETSc.IntType
+        local_row = keys // self.n_global
+        indptr = np.zeros(self.n_local + 1, dtype=int_type)
+        np.cumsum(np.bincount(local_row, minlength=self.n_local), out=indptr[1:])
+        indices = (keys % self.n_global).astype(int_type)
+
+        mat = PETSc.Mat().create(comm=self.comm)
+        mat.setSizes(((self.n_local, self.n_global), (self.n_local, self.n_global)), bsize=self.block_size)
+        mat.setType(PETSc.Mat.Type.AIJ)
+        mat.setOptionsPrefix(self.prefix)
+        mat.setPreallocationCSR((indptr, indices, data))  # inserts the values and assembles
+        mat.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
+        mat.setOption(PETSc.Mat.Option.NO_OFF_PROC_ENTRIES, True)
+        if self.symmetric:
+            mat.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+            mat.setOption(PETSc.Mat.Option.SYMMETRY_ETERNAL, True)
+        if self._nullspace is not None:
+            self._attach_nullspace(mat)
+
+        if self._mat is not None:
+            self._ksp.reset()  # frees the preconditioner built on the old pattern
+            self._mat.destroy()
+        self._mat = mat
+        self._pattern = dict(rows=rows.copy(), cols=cols.copy(), keys=keys, inverse=inverse,
+                             indptr=indptr, indices=indices)
+        self.n_builds += 1
+
+    # -- solve ----------------------------------------------------------------------
+
+    def solve(self, rhs, x0=None):
+        """Collective: solve ``A x = rhs`` for this rank's unknowns.
+
+        Parameters
+        ----------
+        rhs : numpy.ndarray of float64
+            Right-hand side of the owned rows, ``n_local`` values in any shape (e.g.
+            ``(n_local_rows, block_size)``).
+        x0 : numpy.ndarray of float64, optional
+            Initial guess of the same size (e.g. the previous step's pressure); without
+            it the KSP starts from zero.
+
+        Returns
+        -------
+        x : numpy.ndarray of float64
+            Solution of the owned rows, same shape as ``rhs`` (a copy).
+        info : dict
+            ``iterations`` (int), ``residual_norm`` (float: the norm the KSP tests, the
+            preconditioned residual for CG by default), ``reason`` (int, > 0),
+            ``reason_name`` (str, e.g. ``"CONVERGED_RTOL"``), ``time_s`` (float: wall
+            time of ``KSPSolve`` on this rank, seconds).
+
+        Raises
+        ------
+        SolverError
+            On every rank if the KSP did not converge (``reason <= 0``).
+        ValueError
+            On every rank if some rank's ``rhs`` or ``x0`` has the wrong size.
+        RuntimeError
+            If called before :meth:`assemble`.
+        """
+        if self._mat is None:
+            raise RuntimeError(f"{self.prefix}: call assemble() before solve()")
+        rhs = np.asarray(rhs, dtype=np.float64)
+        x0 = None if x0 is None else np.asarray(x0, dtype=np.float64)
+        error = None
+        for name, array in (("rhs", rhs), ("x0", x0)):
+            if array is not None and array.size != self.n_local:
+                error = ValueError, (
+                    f"{self.prefix}: {name} has {array.size} values, this rank owns {self.n_local} "
+                    f"unknowns ({self.n_local_rows} points x block size {self.block_size})"
+                )
+        _agree(self.comm, error)
+
+        self._b.setArray(rhs.reshape(-1))
+        if x0 is None:
+            self._x.set(0.0)
+        else:
+            self._x.setArray(x0.reshape(-1))
+        self._ksp.setInitialGuessNonzero(x0 is not None)
+        start = time.perf_counter()
+        self._ksp.solve(self._b, self._x)
+        elapsed = time.perf_counter() - start
+
+        reason = int(self._ksp.getConvergedReason())
+        info = dict(
+            iterations=int(self._ksp.getIterationNumber()),
+            residual_norm=float(self._ksp.getResidualNorm()),
+            reason=reason,
+            reason_name=self._reasons.get(reason, f"UNKNOWN_{reason}"),
+            time_s=elapsed,
+        )
+        if reason <= 0:
+            raise SolverError(self._failure_message(info))
+        return self._x.getArray(readonly=True).copy().reshape(rhs.shape), info
+
+    def _failure_message(self, info: dict) -> str:
+        p = self.prefix
+        rtol, atol, _, max_it = self._ksp.getTolerances()
+        return (
+            f"linear solve '{p}' did not converge: {info['reason_name']} ({info['reason']}) after "
+            f"{info['iterations']} iterations, residual norm {info['residual_norm']:.3e} "
+            f"(rtol {rtol:g}, atol {atol:g}, max_it {max_it}; ksp {self._ksp.getType()}, "
+            f"pc {self._ksp.getPC().getType()}). Try a smaller time step; or another solver or "
+            f"preconditioner, e.g. -{p}ksp_type gmres, -{p}pc_type gamg or -{p}pc_type lu "
+            f"(small runs); or -{p}ksp_max_it N; watch it with -{p}ksp_monitor -{p}ksp_converged_reason"
+        )
+
+    # -- clean-up -------------------------------------------------------------------
+
+    def destroy(self) -> None:
+        """Collective: free the PETSc objects; safe to call more than once."""
+        if not self._PETSc.Sys.isFinalized():
+            for obj in (self._ksp, self._mat, self._nullspace, self._x, self._b):
+                if obj is not None:
+                    obj.destroy()
+        self._ksp = self._mat = self._nullspace = self._x = self._b = None
+        self._pattern = None
+
+    def __enter__(self) -> "LinearSystem":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.destroy()
+
+    def __repr__(self) -> str:
+        return (
+            f"LinearSystem(prefix={self.prefix!r}, rows {self.offset}..{self.offset + self.n_local - 1} "
+            f"of {self.n_global}, block_size={self.block_size})"
+        )

@@ -1,0 +1,123 @@
+"""The command line, run as a user would: each verb, and bad input on 1 and 2 ranks.
+
+These tests spawn ``parsph`` (and ``mpirun -n 2 parsph``) as subprocesses, so they run in
+the one-rank session only (mpirun cannot be nested).
+"""
+import os
+import subprocess
+import sys
+
+import pytest
+
+from tests.scenes import MOVING_2D, write
+
+pytestmark = pytest.mark.serial_only
+
+_MPI_ENV_PREFIXES = ("OMPI_", "PMIX_", "OPAL_", "PRTE_", "HYDRA_", "PMI_")
+
+
+def _env():
+    env = {k: v for k, v in os.environ.items() if not k.startswith(_MPI_ENV_PREFIXES)}
+    env.update(OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1",
+               OMPI_MCA_rmaps_base_oversubscribe="1")
+    return env
+
+
+def parsph(*args, ranks=1, timeout=240, cwd=None):
+    cmd = [sys.executable, "-m", "parsph", *args]
+    if ranks > 1:
+        cmd = ["mpirun", "-n", str(ranks)] + cmd
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=_env(),
+                          cwd=cwd, stdin=subprocess.DEVNULL)
+
+
+def test_scenes_lists_builtins():
+    r = parsph("scenes")
+    assert r.returncode == 0, r.stderr
+    assert "hydrostatic" in r.stdout and "tank" in r.stdout
+
+
+def test_info_prints_versions():
+    r = parsph("info")
+    assert r.returncode == 0, r.stderr
+    for word in ("MPI", "mpi4py", "PETSc", "hypre", "HDF5", "numba", "numpy"):
+        assert word in r.stdout
+    assert "parallel" in r.stdout
+
+
+def test_check_prints_stages_counts_memory():
+    r = parsph("check", "hydrostatic", ranks=2)
+    assert r.returncode == 2 and "NOT AVAILABLE" in r.stdout and "needs the 'iisph'" in r.stderr
+    r = parsph("check", "hydrostatic", "--set", "run.mode=geometry", ranks=2)
+    assert r.returncode == 0, r.stderr
+    assert "stages of one step" in r.stdout and "neighbours" in r.stdout
+    assert "per rank: 0:" in r.stdout and "1:" in r.stdout and "MiB" in r.stdout
+    assert r.stdout.count("stages of one step") == 1  # rank 0 only
+
+
+def test_run_and_plot_on_two_ranks(tmp_path):
+    scene = write(tmp_path, MOVING_2D)
+    out = tmp_path / "out"
+    r = parsph("run", scene, "--out", str(out), ranks=2)
+    assert r.returncode == 0, r.stderr
+    for name in ("particles.h5", "particles.xdmf", "stats.csv"):
+        assert (out / name).stat().st_size > 0
+    assert "1/2 " not in r.stderr  # non-root ranks log warnings only
+    r = parsph("plot", str(out))
+    assert r.returncode == 0, r.stderr
+    pngs = [p for p in r.stdout.split() if p.endswith(".png")]
+    assert pngs and all(os.path.getsize(p) > 1000 for p in pngs)
+
+
+BAD_INPUT = [
+    (["frobnicate"], "invalid choice"),
+    ([], "no command"),
+    (["run", "nope"], "unknown scene 'nope'"),
+    (["run", "missing/scene.toml"], "does not exist"),
+    (["run", "hydrostatic", "--set", "domain.particle_size=-0.1"], "domain.particle_size"),
+    (["run", "hydrostatic", "--set", "domain.particle_size=1e-5", "--set", "run.mode=geometry"],
+     "run.max_particles"),
+    (["run", "hydrostatic", "--set", "domain.dim=4"], "domain.dim"),
+    (["run", "hydrostatic", "--set", "run.end_time=nan"], "run.end_time"),
+    (["run", "hydrostatic", "--bogus"], "unknown option '--bogus'"),
+    (["run", "hydrostatic"], "needs the 'iisph' stage"),
+    (["check", "hydrostatic", "--set", "walls.0.sides=[\"roof\"]"], "walls[0].sides"),
+    (["plot", "/nonexistent/dir"], "/nonexistent/dir"),
+]
+
+
+@pytest.mark.parametrize("ranks", [1, 2])
+@pytest.mark.parametrize("args,words", BAD_INPUT, ids=[" ".join(a) or "none" for a, _ in BAD_INPUT])
+def test_bad_input_one_message_no_traceback(args, words, ranks):
+    r = parsph(*args, ranks=ranks, timeout=120)
+    assert r.returncode == 2, (r.returncode, r.stdout, r.stderr)
+    assert words in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr
+    assert r.stderr.count("parsph: error:") == 1, r.stderr
+
+
+def test_bad_scene_files(tmp_path):
+    empty = write(tmp_path, "", "empty.toml")
+    broken = write(tmp_path, "[scene\n", "broken.toml")
+    for path, words in ((empty, "is empty"), (broken, "not valid TOML")):
+        r = parsph("run", path, ranks=2)
+        assert r.returncode == 2 and words in r.stderr and "Traceback" not in r.stderr
+
+
+def test_output_dir_not_writable(tmp_path):
+    scene = write(tmp_path, MOVING_2D)
+    blocker = tmp_path / "file"
+    blocker.write_text("I am a file, not a directory")
+    r = parsph("run", scene, "--out", str(blocker / "out"), ranks=2)
+    assert r.returncode == 2 and "not writable" in r.stderr
+    assert blocker.read_text() == "I am a file, not a directory"
+
+
+def test_numerical_failure_particle_leaves_domain(tmp_path):
+    scene = write(tmp_path, MOVING_2D)
+    out = tmp_path / "out"
+    r = parsph("run", scene, "--out", str(out), "--set", "bodies.0.velocity=[0, 30]", ranks=2)
+    assert r.returncode == 3, r.stderr
+    assert "left the domain" in r.stderr and "particle id" in r.stderr
+    assert r.stderr.count("numerical failure") == 1
+    assert (out / "particles.h5").stat().st_size > 0  # the frames written before are kept

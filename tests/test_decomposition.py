@@ -1,0 +1,426 @@
+"""Tests of the decomposition package: Box, RCB, migrate, Halo.
+
+Every test is valid at any rank count: the global particle set is generated identically
+on every rank from a seeded generator, each rank keeps a slice, and the results are
+compared with serial brute force on the global set.
+"""
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+from decomposition.box import Box
+from decomposition.exchange import migrate
+from decomposition.halo import Halo
+from decomposition.partition import RCB, imbalance
+
+FAST = settings(max_examples=30, deadline=None, database=None)
+
+
+class OneProcessComm:
+    """A stand-in communicator of ``size`` ranks where this process holds all the data.
+
+    The RCB cuts depend only on the global set of positions, so building with all
+    positions on this fake rank gives the tree a real ``size``-rank run would build.
+    """
+
+    rank = 0
+
+    def __init__(self, size):
+        self.size = size
+
+    def Allreduce(self, send, recv, op=None):
+        recv[...] = send
+
+    def allreduce(self, value, op=None):
+        return value
+
+    def allgather(self, value):
+        return [value]
+
+
+def _split(comm, n, how="slice", seed=0):
+    """Indices of the global rows this rank starts with."""
+    if how == "slice":
+        return np.array_split(np.arange(n), comm.size)[comm.rank]
+    if how == "shuffled":
+        perm = np.random.default_rng(seed).permutation(n)
+        return perm[comm.rank::comm.size]
+    raise ValueError(how)
+
+
+def _lattice(shape, spacing=1.0):
+    axes = [np.arange(k) * spacing + 0.5 * spacing for k in shape]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, len(shape))
+
+
+def _distribute(comm, X, box, how="slice"):
+    """RCB from this rank's slice of X, then migrate ids and positions to the owners."""
+    loc = _split(comm, len(X), how)
+    rcb = RCB.build(comm, X[loc], box)
+    owned = migrate(comm, {"x": X[loc], "id": loc.astype(np.int64)}, rcb.owner(X[loc]))
+    return rcb, owned
+
+
+def _gather_ids(comm, ids):
+    return np.sort(np.concatenate(comm.allgather(np.asarray(ids))))
+
+
+# --------------------------------------------------------------------------- Box
+def test_box_wrap_and_outside():
+    box = Box((0.0, -1.0, 2.0), (1.0, 1.0, 3.0), (True, False, True))
+    x = np.array([[1.25, -2.0, 1.5], [-0.25, 0.5, 3.0], [1.0, 1.0, 2.0], [0.5, 0.0, 2.5]])
+    w = box.wrap(x)
+    assert w is not x
+    np.testing.assert_allclose(w, [[0.25, -2.0, 2.5], [0.75, 0.5, 2.0], [0.0, 1.0, 2.0],
+                                   [0.5, 0.0, 2.5]])
+    np.testing.assert_array_equal(box.outside(x), [True, False, False, False])
+    assert box.outside(np.array([[0.0, np.nan, 2.0]]))[0]
+    assert box.dim == 3
+    np.testing.assert_array_equal(box.length, [1.0, 2.0, 1.0])
+    shifts = box.image_shifts()
+    assert shifts.shape == (9, 3) and not shifts[0].any() and not shifts[:, 1].any()
+    np.testing.assert_allclose(box.minimum_image(np.array([[0.75, 1.5, -0.6]])), [[-0.25, 1.5, 0.4]])
+
+
+def test_box_rejects_bad_input():
+    with pytest.raises(ValueError, match="exceed"):
+        Box((0.0, 0.0), (1.0, 0.0), (False, False))
+    with pytest.raises(ValueError, match="one entry per axis"):
+        Box((0.0, 0.0), (1.0, 1.0, 1.0), (False, False))
+    with pytest.raises(ValueError, match="2 \\(2D\\) or 3"):
+        Box((0.0,), (1.0,), (False,))
+    with pytest.raises(ValueError, match="components"):
+        Box((0.0, 0.0), (1.0, 1.0), (True, True)).wrap(np.zeros((4, 3)))
+
+
+@FAST
+@given(st.lists(st.floats(-1e3, 1e3), min_size=2, max_size=40))
+def test_box_wrap_property(values):
+    box = Box((-0.3, 0.0), (0.7, 2.0), (True, False))
+    x = np.array(values[: len(values) // 2 * 2]).reshape(-1, 2)
+    w = box.wrap(x)
+    assert np.all((w[:, 0] >= -0.3) & (w[:, 0] < 0.7))
+    np.testing.assert_array_equal(w[:, 1], x[:, 1])
+    k = (x[:, 0] - w[:, 0]) / 1.0
+    np.testing.assert_allclose(k, np.round(k), atol=1e-9 * max(1.0, np.abs(x).max()))
+
+
+# --------------------------------------------------------------------------- RCB
+@pytest.mark.parametrize("dim, n", [(2, 1000), (3, 777), (2, 5)])
+def test_rcb_balances_random_points(comm, dim, n):
+    X = np.random.default_rng(dim * 100 + n).random((n, dim)) * np.arange(1, dim + 1)
+    box = Box((0.0,) * dim, tuple(np.arange(1.0, dim + 1)), (False,) * dim)
+    rcb, owned = _distribute(comm, X, box)
+    counts = np.bincount(rcb.owner(X), minlength=comm.size)
+    assert counts.sum() == n and counts.max() - counts.min() <= 1
+    assert len(owned["id"]) == counts[comm.rank]
+    assert imbalance(comm, len(owned["id"])) == pytest.approx(counts.max() * comm.size / n)
+
+
+@pytest.mark.parametrize("shape", [(13, 11), (16, 16), (6, 5, 4), (7, 7)])
+def test_rcb_balances_lattice_with_ties(comm, shape):
+    X = _lattice(shape)
+    box = Box((0.0,) * len(shape), tuple(float(k) for k in shape), (False,) * len(shape))
+    rcb, owned = _distribute(comm, X, box)
+    counts = np.bincount(rcb.owner(X), minlength=comm.size)
+    assert counts.max() - counts.min() <= 1
+    np.testing.assert_array_equal(rcb.owner(owned["x"]), comm.rank)
+
+
+@FAST
+@given(size=st.integers(1, 13), n=st.integers(0, 300), dim=st.sampled_from([2, 3]),
+       seed=st.integers(0, 2**32 - 1), lattice=st.booleans())
+def test_rcb_balances_any_rank_count(size, n, dim, seed, lattice):
+    """Serial stand-in for `size` ranks (the cuts depend only on the global set)."""
+    if lattice:
+        side = max(1, round(n ** (1.0 / dim)))
+        X = _lattice((side,) * dim)
+    else:
+        X = np.random.default_rng(seed).random((n, dim))
+    box = Box((0.0,) * dim, (float(max(1, X.max(initial=1.0))) + 1.0,) * dim, (False,) * dim)
+    rcb = RCB.build(OneProcessComm(size), X, box)
+    assert rcb.n_ranks == size
+    counts = np.bincount(rcb.owner(X), minlength=size)
+    assert len(counts) == size and counts.max() - counts.min() <= 1
+    _check_owner_in_subbox(rcb, X)
+
+
+@pytest.mark.parametrize("size", [2, 3, 5, 8])
+def test_rcb_negative_and_signed_zero_coordinates(size):
+    """Keys cross zero; -0.0 and +0.0 are the same coordinate (serial stand-in)."""
+    X = _lattice((9, 6), 0.25) - 1.125
+    X[np.isclose(X, 0.0)] = 0.0
+    X[::7][X[::7] == 0.0] = -0.0
+    X = np.concatenate([X, np.random.default_rng(size).random((50, 2)) * 2.0 - 1.0])
+    box = Box((-1.5, -1.5), (1.5, 1.5), (False, False))
+    rcb = RCB.build(OneProcessComm(size), X, box)
+    counts = np.bincount(rcb.owner(X), minlength=size)
+    assert counts.max() - counts.min() <= 1
+    np.testing.assert_array_equal(rcb.owner(X), rcb.owner(X + 0.0))
+    _check_owner_in_subbox(rcb, X)
+
+
+def _check_owner_in_subbox(rcb, X):
+    owner = rcb.owner(X)
+    lo, hi = rcb.subboxes()
+    assert np.all((X >= lo[owner]) & (X <= hi[owner]))
+    box = rcb.domain
+    assert np.prod(hi - lo, axis=1).sum() == pytest.approx(np.prod(box.length))
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_rcb_owner_agrees_with_subbox(comm, dim):
+    rng = np.random.default_rng(7)
+    X = rng.random((400, dim))
+    box = Box((0.0,) * dim, (1.0,) * dim, (False,) * dim)
+    rcb, _ = _distribute(comm, X, box)
+    probes = np.concatenate([rng.random((2000, dim)), X])
+    _check_owner_in_subbox(rcb, probes)
+    for r in range(comm.size):
+        lo, hi = rcb.subbox(r)
+        np.testing.assert_array_equal(lo, rcb.subboxes()[0][r])
+        assert np.all(lo >= 0.0) and np.all(hi <= 1.0) and np.all(lo <= hi)
+    with pytest.raises(ValueError, match="not in"):
+        rcb.subbox(comm.size)
+
+
+@pytest.mark.parametrize("weighted", [False, True])
+def test_rcb_cuts_independent_of_distribution(comm, weighted):
+    rng = np.random.default_rng(11)
+    X = np.concatenate([rng.random((500, 3)), _lattice((5, 5, 4), 0.2)])
+    W = 1.0 + 3.0 * rng.random(len(X)) if weighted else None
+    box = Box((0.0, 0.0, 0.0), (1.0, 1.0, 1.0), (False, True, False))
+    trees = []
+    for how in ("slice", "shuffled"):
+        loc = _split(comm, len(X), how, seed=3)
+        trees.append(RCB.build(comm, X[loc], box, None if W is None else W[loc]).to_arrays())
+    a, b = trees
+    assert a.keys() == b.keys()
+    for key in a:
+        assert a[key].dtype == b[key].dtype and np.array_equal(a[key], b[key]), key
+    everyone = comm.allgather(a)
+    for other in everyone:
+        assert all(np.array_equal(other[k], a[k]) for k in a)
+
+
+def test_rcb_arrays_round_trip(comm):
+    X = np.random.default_rng(5).random((300, 2))
+    box = Box((0.0, 0.0), (1.0, 1.0), (True, False))
+    rcb, _ = _distribute(comm, X, box)
+    arrays = rcb.to_arrays()
+    assert all(isinstance(v, np.ndarray) and v.dtype.kind in "iuf" for v in arrays.values())
+    again = RCB.from_arrays({k: v.copy() for k, v in arrays.items()})
+    assert again.domain == box
+    np.testing.assert_array_equal(again.owner(X), rcb.owner(X))
+    np.testing.assert_array_equal(again.subboxes()[0], rcb.subboxes()[0])
+    with pytest.raises(ValueError, match="missing"):
+        RCB.from_arrays({"axis": arrays["axis"]})
+
+
+def test_rcb_weights(comm):
+    rng = np.random.default_rng(2)
+    X = rng.random((600, 2))
+    W = np.where(X[:, 0] < 0.3, 5.0, 1.0)
+    box = Box((0.0, 0.0), (1.0, 1.0), (False, False))
+    loc = _split(comm, len(X), "slice")
+    plain = RCB.build(comm, X[loc], box).to_arrays()
+    ones = RCB.build(comm, X[loc], box, np.ones(len(loc))).to_arrays()
+    assert all(np.array_equal(plain[k], ones[k]) for k in plain)
+    rcb = RCB.build(comm, X[loc], box, W[loc])
+    load = np.bincount(rcb.owner(X), weights=W, minlength=comm.size)
+    assert np.abs(load - W.sum() / comm.size).max() <= (rcb.depth + 1) * W.max()
+    with pytest.raises((ValueError, RuntimeError), match="weights"):
+        RCB.build(comm, X[loc], box, -W[loc])
+
+
+def test_rcb_rejects_bad_positions(comm):
+    box = Box((0.0, 0.0), (1.0, 1.0), (False, False))
+    x = np.full((1, 2), np.nan) if comm.rank == 0 else np.zeros((0, 2))
+    with pytest.raises((ValueError, RuntimeError), match="NaN"):
+        RCB.build(comm, x, box)
+
+
+def test_imbalance(comm):
+    assert imbalance(comm, 0) == 1.0
+    assert imbalance(comm, 4) == pytest.approx(1.0)
+    assert RCB.imbalance(comm, 10 if comm.rank == 0 else 0) == pytest.approx(comm.size)
+
+
+# ----------------------------------------------------------------------- migrate
+def test_migrate_conserves_rows_and_lands_on_owner(comm):
+    n, dim = 503, 3
+    X = np.random.default_rng(9).random((n, dim))
+    box = Box((0.0,) * dim, (1.0,) * dim, (False,) * dim)
+    loc = _split(comm, n, "shuffled", seed=4)
+    rcb = RCB.build(comm, X[loc], box)
+    fields = {"x": X[loc], "id": loc.astype(np.int64),
+              "F": loc[:, None, None] * np.ones((1, dim, dim)),
+              "phase": (loc % 3).astype(np.uint8), "flag": loc % 2 == 0,
+              "src": np.full(len(loc), comm.rank, dtype=np.int32),
+              "local": np.arange(len(loc), dtype=np.int64),
+              "empty": np.zeros((len(loc), 0))}
+    out = migrate(comm, fields, rcb.owner(X[loc]))
+    assert list(out) == list(fields)
+    for name, a in out.items():
+        assert a.dtype == fields[name].dtype and a.shape[1:] == fields[name].shape[1:]
+    ids = out["id"]
+    np.testing.assert_array_equal(_gather_ids(comm, ids), np.arange(n))
+    np.testing.assert_array_equal(out["x"], X[ids])
+    np.testing.assert_array_equal(out["F"], ids[:, None, None] * np.ones((1, dim, dim)))
+    np.testing.assert_array_equal(out["phase"], ids % 3)
+    np.testing.assert_array_equal(out["flag"], ids % 2 == 0)
+    np.testing.assert_array_equal(rcb.owner(out["x"]), comm.rank)
+    key = out["src"].astype(np.int64) * n + out["local"]
+    assert np.all(np.diff(key) > 0)  # by source rank, then original local order
+
+
+def test_migrate_rejects_bad_dest(comm):
+    x = np.zeros((2, 2))
+    dest = np.array([0, comm.size]) if comm.rank == 0 else np.zeros(2, dtype=np.int64)
+    with pytest.raises((ValueError, RuntimeError), match="dest"):
+        migrate(comm, {"x": x}, dest)
+
+
+@pytest.mark.mpi
+def test_migrate_everything_to_last_rank(comm):
+    n = 10
+    loc = _split(comm, n)
+    out = migrate(comm, {"id": loc}, np.full(len(loc), comm.size - 1))
+    expect = np.arange(n) if comm.rank == comm.size - 1 else np.zeros(0)
+    np.testing.assert_array_equal(out["id"], expect)
+
+
+# -------------------------------------------------------------------------- halo
+def _check_halo_complete(comm, X, box, radius, how="slice"):
+    """Owned + halo rows within radius of each owned row == brute force on the global set."""
+    rcb, owned = _distribute(comm, X, box, how)
+    halo = Halo.build(comm, rcb, owned["x"], radius, box)
+    got = halo.exchange(owned)
+    assert halo.n_halo == len(got["id"]) and got["x"].shape == (halo.n_halo, box.dim)
+    xo, ido = owned["x"], owned["id"]
+    allx = np.concatenate([xo, got["x"]])
+    allid = np.concatenate([ido, got["id"]])
+    d2 = ((xo[:, None, :] - allx[None, :, :]) ** 2).sum(axis=-1)
+    counts = np.zeros((len(xo), len(X)), dtype=np.int64)
+    rows, cols = np.nonzero(d2 <= radius * radius)
+    np.add.at(counts, (rows, allid[cols]), 1)
+    dx = box.minimum_image(xo[:, None, :] - X[None, :, :])
+    d2b = (dx ** 2).sum(axis=-1)
+    expect = (d2b <= radius * radius).astype(np.int64)
+    clear = np.abs(np.sqrt(d2b) - radius) > 1e-9  # ignore pairs at the radius to rounding
+    np.testing.assert_array_equal(counts[clear], expect[clear])
+    return rcb, owned, halo, got
+
+
+@pytest.mark.parametrize("dim, n, radius", [(2, 600, 0.08), (3, 500, 0.15), (2, 300, 0.4)])
+def test_halo_equals_serial_neighbourhood(comm, dim, n, radius):
+    X = np.random.default_rng(n + dim).random((n, dim))
+    box = Box((0.0,) * dim, (1.0,) * dim, (False,) * dim)
+    _, owned, halo, _ = _check_halo_complete(comm, X, box, radius)
+    if comm.size == 1:
+        assert halo.n_halo == 0 and halo.n_send == 0
+
+
+@pytest.mark.parametrize("dim, periodic, n", [(2, (True, True), 300), (2, (True, False), 400),
+                                              (3, (False, True, True), 500)])
+def test_periodic_halo_equals_minimum_image_neighbourhood(comm, dim, periodic, n):
+    radius = 0.1
+    hi = (0.31, 0.5, 0.33)[:dim]  # about 3 radii wide
+    box = Box((0.0,) * dim, hi, periodic)
+    X = np.random.default_rng(n).random((n, dim)) * np.array(hi)
+    _, owned, halo, got = _check_halo_complete(comm, X, box, radius, how="shuffled")
+    assert halo.send_shift is not None and halo.n_halo > 0
+    # Images land outside the box on periodic axes only.
+    outside = (got["x"] < 0.0) | (got["x"] >= np.array(hi))
+    assert not outside[:, ~np.array(periodic)].any()
+    if comm.size == 1:
+        assert outside.any(axis=1).all()  # every halo row on one rank is an image
+
+
+def test_halo_reverse_add_counts_copies(comm):
+    box = Box((0.0, 0.0), (0.5, 1.0), (True, False))
+    X = np.random.default_rng(3).random((400, 2)) * [0.5, 1.0]
+    rcb, owned, halo, got = _check_halo_complete(comm, X, box, 0.12)
+    fields = {"idf": owned["id"].astype(np.float64), "v": np.ones((len(owned["id"]), 2)),
+              "k": np.ones(len(owned["id"]), dtype=np.int32)}
+    h = halo.exchange(fields)
+    np.testing.assert_array_equal(h["idf"], got["id"].astype(np.float64))
+    back = halo.reverse_add({"one": np.ones_like(h["idf"]), "v": h["v"], "k": h["k"]})
+    all_halo_ids = np.concatenate(comm.allgather(got["id"]))
+    copies = np.bincount(all_halo_ids, minlength=len(X))[owned["id"]]
+    np.testing.assert_array_equal(back["one"], copies)
+    np.testing.assert_array_equal(back["v"], np.repeat(copies[:, None], 2, axis=1))
+    np.testing.assert_array_equal(back["k"], copies)
+    assert back["k"].dtype == np.int32 and back["one"].shape == (halo.n_owned,)
+
+
+def test_halo_arrival_order_is_deterministic(comm):
+    box = Box((0.0, 0.0, 0.0), (1.0, 0.4, 1.0), (False, True, False))
+    X = np.random.default_rng(8).random((500, 3)) * [1.0, 0.4, 1.0]
+    rcb, owned = _distribute(comm, X, box)
+    n = len(owned["id"])
+    fields = {"x": owned["x"], "src": np.full(n, comm.rank, dtype=np.int64),
+              "local": np.arange(n, dtype=np.int64)}
+    h1 = Halo.build(comm, rcb, owned["x"], 0.1, box)
+    h2 = Halo.build(comm, rcb, owned["x"], 0.1, box)
+    np.testing.assert_array_equal(h1.send_index, h2.send_index)
+    np.testing.assert_array_equal(h1.send_shift, h2.send_shift)
+    a, b = h1.exchange(fields), h2.exchange(fields)
+    for k in a:
+        np.testing.assert_array_equal(a[k], b[k])
+    key = a["src"] * (len(X) + 1) + a["local"]
+    assert np.all(np.diff(key) >= 0)  # by source rank, then send (local) order
+    np.testing.assert_array_equal(a["src"], np.repeat(np.arange(comm.size), h1.recv_counts))
+
+
+@pytest.mark.parametrize("n", [0, 1])
+@pytest.mark.parametrize("periodic", [False, True])
+def test_empty_ranks_do_not_hang(comm, n, periodic):
+    box = Box((0.0, 0.0), (1.0, 1.0), (periodic, False))
+    X = np.full((n, 2), 0.05)
+    rcb, owned = _distribute(comm, X, box)
+    np.testing.assert_array_equal(_gather_ids(comm, owned["id"]), np.arange(n))
+    assert imbalance(comm, len(owned["id"])) == pytest.approx(comm.size if n else 1.0)
+    halo = Halo.build(comm, rcb, owned["x"], 0.2, box)
+    got = halo.exchange(owned)
+    assert got["x"].shape == (halo.n_halo, 2) and got["id"].dtype == np.int64
+    back = halo.reverse_add({"one": np.ones(halo.n_halo)})
+    assert back["one"].shape == (len(owned["id"]),)
+    if periodic and len(owned["id"]):
+        assert np.all(back["one"] >= 1)  # the periodic image of itself at least
+    out = migrate(comm, owned, np.zeros(len(owned["id"]), dtype=np.int64))
+    assert len(out["id"]) == (n if comm.rank == 0 else 0)
+
+
+def test_halo_from_send_lists(comm):
+    size, me = comm.size, comm.rank
+    n = 3
+    x = np.array([[me, 0.0], [me, 1.0], [me, 2.0]])
+    send_index = [np.array([0, 2]) if r != me else np.array([1]) for r in range(size)]
+    send_shift = [np.zeros((len(i), 2)) for i in send_index]
+    send_shift[me][:] = [10.0, 0.0]
+    halo = Halo.from_send_lists(comm, send_index, send_shift, n_owned=n)
+    got = halo.exchange({"x": x, "id": np.arange(n) + 10 * me})
+    expect_x = np.concatenate([[[r, 0.0], [r, 2.0]] if r != me else [[me + 10.0, 1.0]]
+                               for r in range(size)])
+    np.testing.assert_array_equal(got["x"], expect_x)
+    back = halo.reverse_add({"c": np.ones(halo.n_halo)})
+    np.testing.assert_array_equal(back["c"], [size - 1, 1, size - 1])
+    with pytest.raises((ValueError, RuntimeError), match="send lists"):
+        Halo.from_send_lists(comm, send_index[:-1] if me == 0 else send_index)
+
+
+def test_halo_rejects_bad_radius(comm):
+    box = Box((0.0, 0.0), (0.3, 1.0), (True, False))
+    rcb = RCB.build(comm, np.zeros((0, 2)), box)
+    with pytest.raises((ValueError, RuntimeError), match="periodic box length"):
+        Halo.build(comm, rcb, np.zeros((0, 2)), 0.35, box)
+
+
+@pytest.mark.mpi
+def test_rcb_uses_every_rank(comm):
+    X = np.random.default_rng(1).random((64, 2))
+    box = Box((0.0, 0.0), (1.0, 1.0), (False, False))
+    rcb, owned = _distribute(comm, X, box)
+    assert len(owned["id"]) > 0
+    assert len(set(comm.allgather(tuple(rcb.subbox(comm.rank)[0])))) == comm.size

@@ -1,0 +1,83 @@
+"""Particle generation from shapes: counts, layers, ids independent of the rank count."""
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from decomposition.reduce import global_sum
+from parsph.geometry import estimate_count, generate, wall_layers
+from parsph.materials import PHASE_WALL
+from parsph.scene import load_scene
+from tests.scenes import MOVING_2D, MOVING_3D, write
+
+
+def _gather(comm, fields):
+    allf = comm.allgather({k: fields[k] for k in ("id", "x", "phase")})
+    ids = np.concatenate([f["id"] for f in allf])
+    order = np.argsort(ids)
+    return ids[order], np.concatenate([f["x"] for f in allf])[order], \
+        np.concatenate([f["phase"] for f in allf])[order]
+
+
+def test_tank_layers_and_counts(comm, tmp_path):
+    scn = load_scene("hydrostatic")
+    fields = generate(comm, scn)
+    ids, x, phase = _gather(comm, fields)
+    d = scn.domain.particle_size
+    layers = wall_layers(scn, scn.walls[0])
+    assert layers == 3  # ceil(2h/d) with h = 1.2 d
+    n_water = int(round(1.0 / d)) ** 2
+    n_inner = (int(round(1.0 / d)), int(round(1.2 / d)))
+    n_wall = (n_inner[0] + 2 * layers) * (n_inner[1] + layers) - n_inner[0] * n_inner[1]
+    assert (phase != PHASE_WALL).sum() == n_water
+    assert (phase == PHASE_WALL).sum() == n_wall
+    assert np.array_equal(ids, np.arange(len(ids)))
+    walls = x[phase == PHASE_WALL]
+    assert walls[:, 1].min() == pytest.approx(-(layers - 0.5) * d)
+    assert walls[:, 1].max() == pytest.approx(1.2 - 0.5 * d)  # open top
+    water = x[phase != PHASE_WALL]
+    assert water.min() == pytest.approx(0.5 * d) and water.max() == pytest.approx(1.0 - 0.5 * d)
+    assert estimate_count(scn) >= len(ids)
+
+
+def test_polygon_and_extruded_polygon_inside(comm, tmp_path):
+    scn = load_scene(write(tmp_path, MOVING_2D))
+    ids, x, phase = _gather(comm, generate(comm, scn))
+    right = x[(x[:, 0] > 1.0) & (phase != PHASE_WALL)]
+    # the slanted top edge from (1.2, 0.4) to (1.9, 0.6): nothing above it
+    top = 0.4 + (right[:, 0] - 1.2) * (0.2 / 0.7)
+    assert np.all(right[(right[:, 0] > 1.2), 1] < top[right[:, 0] > 1.2] + 1e-12)
+    scn3 = load_scene(write(tmp_path, MOVING_3D, "s3.toml"))
+    ids3, x3, phase3 = _gather(comm, generate(comm, scn3))
+    slab = x3[phase3 != PHASE_WALL]
+    assert np.all(slab[:, 2] <= 0.6 * (1 - slab[:, 0] / 1.2) + 1e-12)
+    assert set(np.round(slab[:, 1], 6)) == {round(0.05 + 0.1 * k, 6) for k in range(10)}
+
+
+def test_heightmap_body(comm, tmp_path):
+    (tmp_path / "z.asc").write_text(
+        "ncols 3\nnrows 2\nxllcorner 0\nyllcorner 0\ncellsize 0.5\n0.6 0.6 0.6\n0.2 0.4 0.6\n")
+    text = MOVING_3D.replace('shape = "extruded_polygon"',
+                             'shape = "heightmap"\ntop = "z.asc"\nbottom = 0.0')
+    scn = load_scene(write(tmp_path, text))
+    ids, x, phase = _gather(comm, generate(comm, scn))
+    soil = x[phase != PHASE_WALL]
+    # rows: y = 0 holds 0.2 0.4 0.6, y = 0.5 holds 0.6 everywhere (the file lists north first)
+    assert len(soil) > 0
+    assert np.all(soil[:, 0] <= 1.0) and np.all(soil[:, 1] <= 0.5)
+    near_origin = soil[(soil[:, 0] < 0.1) & (soil[:, 1] < 0.1)]
+    assert near_origin[:, 2].max() < 0.3
+
+
+@pytest.mark.mpi
+def test_ids_independent_of_rank_count(comm, tmp_path):
+    path = write(tmp_path, MOVING_2D) if comm.rank == 0 else None
+    path = comm.bcast(path)
+    scn = load_scene(path)
+    one = comm.Split(0 if comm.rank == 0 else MPI.UNDEFINED, comm.rank)
+    serial = _gather(one, generate(one, scn)) if comm.rank == 0 else None
+    parallel = _gather(comm, generate(comm, scn))
+    assert global_sum(comm, 1) == comm.size
+    if comm.rank == 0:
+        assert np.array_equal(serial[0], parallel[0])
+        assert np.array_equal(serial[1], parallel[1])
+        one.Free()

@@ -1,0 +1,319 @@
+"""Neighbour search (parsph.neighbours) against brute force; density summation, eq. (33).
+
+Serial unit tests: under ``mpirun -n 2`` every rank runs them independently (no
+collective calls), each with its own hypothesis draws.
+"""
+import itertools
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+
+from parsph import kernel as K
+from parsph.density import density_summation
+from parsph.neighbours import build_csr, cell_order, pair_count, row_lengths, row_of_pairs
+
+SETTINGS = settings(max_examples=80, deadline=None, database=None)
+
+
+def brute_force(x, n_query, radius):
+    """Reference CSR lists: squared distance summed over the axes in order, < radius**2."""
+    x = np.asarray(x, dtype=np.float64)
+    rows = []
+    for i in range(n_query):
+        d = x - x[i]
+        r2 = d[:, 0] * d[:, 0]
+        for a in range(1, x.shape[1]):
+            r2 = r2 + d[:, a] * d[:, a]
+        ok = r2 < radius * radius
+        ok[i] = False
+        rows.append(np.flatnonzero(ok))
+    indptr = np.zeros(n_query + 1, dtype=np.int64)
+    indptr[1:] = np.cumsum([len(r) for r in rows], dtype=np.int64)
+    indices = np.concatenate(rows + [np.empty(0, np.int64)]).astype(np.int32)
+    return indptr, indices
+
+
+def check_against_brute_force(x, n_query, radius):
+    indptr, indices = build_csr(x, n_query, radius)
+    assert indptr.dtype == np.int64 and indptr.shape == (n_query + 1,)
+    assert indices.dtype == np.int32 and indices.shape == (indptr[-1],)
+    assert indptr[0] == 0 and np.all(np.diff(indptr) >= 0)
+    for i in range(n_query):
+        row = indices[indptr[i] : indptr[i + 1]]
+        assert np.all(np.diff(row) > 0), "row not strictly ascending"
+        assert i not in row, "self in its own row"
+    ref_ptr, ref_idx = brute_force(x, n_query, radius)
+    assert np.array_equal(indptr, ref_ptr)
+    assert np.array_equal(indices, ref_idx)
+    return indptr, indices
+
+
+@st.composite
+def point_sets(draw):
+    """(x, n_query, radius): uniform, clustered, duplicated, lattice or far-flung sets."""
+    dim = draw(st.sampled_from([1, 2, 3]))
+    n = draw(st.one_of(st.integers(0, 4), st.integers(5, 60), st.integers(61, 400)))
+    kinds = ["uniform", "clusters", "duplicates", "lattice", "huge_box", "line"]
+    kind = draw(st.sampled_from(kinds))
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    radius = draw(st.sampled_from([0.02, 0.1, 0.25, 0.7, 3.0]))
+    if kind == "uniform":
+        x = rng.uniform(-1.0, 1.0, (n, dim)) * draw(st.sampled_from([1.0, 10.0]))
+    elif kind == "clusters":
+        centres = rng.uniform(-5.0, 5.0, (max(1, n // 30), dim))
+        x = centres[rng.integers(0, len(centres), n)] + 0.05 * rng.standard_normal((n, dim))
+    elif kind == "duplicates":
+        base = rng.uniform(0.0, 1.0, (max(1, n // 4), dim))
+        x = base[rng.integers(0, len(base), n)]
+    elif kind == "lattice":
+        # exact lattice distances: radius ties with pair distances (strict inequality)
+        side = max(1, int(round(n ** (1.0 / dim))))
+        g = np.arange(side) * 0.1
+        x = np.array(list(itertools.product(g, repeat=dim)), dtype=np.float64)[:n]
+        # far from the origin the rounded coordinates put some ties just inside/outside
+        x = x + draw(st.sampled_from([0.0, -3.7e3, 1e6 + 0.3]))
+        radius = draw(st.sampled_from([0.1, 0.2, 0.1 * np.sqrt(2.0), 0.25]))
+    elif kind == "huge_box":
+        # a far outlier: the dense grid would need ~1e10 cells per axis (sparse layout)
+        x = rng.uniform(0.0, 1.0, (n, dim))
+        if n:
+            x[-1] = 1e9 * rng.choice([-1.0, 1.0], dim)
+        radius = draw(st.sampled_from([0.05, 0.2]))
+    else:  # points on a line in a higher-dimensional space
+        t = rng.uniform(0.0, 3.0, n)
+        x = np.outer(t, rng.uniform(-1.0, 1.0, dim))
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    n = x.shape[0]
+    n_query = draw(st.integers(0, n))
+    return x, n_query, radius
+
+
+@SETTINGS
+@given(point_sets())
+def test_equals_brute_force(case):
+    x, n_query, radius = case
+    check_against_brute_force(x, n_query, radius)
+
+
+@SETTINGS
+@given(
+    x=hnp.arrays(
+        np.float64,
+        st.tuples(st.integers(0, 40), st.sampled_from([2, 3])),
+        elements=st.sampled_from([0.0, 0.1, 0.2, 0.25, 0.3, -0.1, 1.0, 1e-300, 7.5]),
+    ),
+    radius=st.sampled_from([0.1, 0.2, 0.15, 1.0]),
+    data=st.data(),
+)
+def test_equals_brute_force_on_ties(x, radius, data):
+    """Few distinct coordinates: many duplicates and pairs exactly at the radius."""
+    n_query = data.draw(st.integers(0, x.shape[0]))
+    check_against_brute_force(x, n_query, radius)
+
+
+@pytest.mark.parametrize("offset", [0.0, 12345.678, -1e7])
+@pytest.mark.parametrize("dim", [1, 2, 3])
+def test_pairs_at_the_radius(dim, offset):
+    """Distances within a few ulps of the radius, along axes and diagonals."""
+    radius = 0.3
+    pts = [np.zeros(dim)]
+    for k in range(dim):
+        for sign in (1.0, -1.0):
+            for v in (radius, np.nextafter(radius, 0.0), np.nextafter(radius, 1.0), 2 * radius):
+                p = np.zeros(dim)
+                p[k] = sign * v
+                pts.append(p)
+    diag = np.full(dim, radius / np.sqrt(dim))
+    for f in (1.0 - 1e-15, 1.0, 1.0 + 1e-15):
+        pts.append(diag * f)
+        pts.append(-diag * f)
+    x = np.array(pts) + offset
+    indptr, indices = check_against_brute_force(x, len(x), radius)
+    if offset == 0.0:  # on-axis points at exactly the radius are not neighbours of 0
+        assert 1 not in indices[: indptr[1]] and 2 in indices[: indptr[1]]
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_larger_random_set_and_halo_rows(dim):
+    rng = np.random.default_rng(7)
+    x = rng.uniform(0.0, 1.0, (3000, dim))
+    indptr, indices = check_against_brute_force(x, 2000, 0.08)
+    assert indices.max() >= 2000  # halo rows appear as neighbours
+    # symmetric among query rows
+    rows = row_of_pairs(indptr)
+    q = indices < 2000
+    pairs = set(zip(rows[q].tolist(), indices[q].tolist()))
+    assert all((j, i) in pairs for i, j in pairs)
+
+
+@pytest.mark.parametrize("dim", [1, 2, 3])
+def test_sparse_layout(monkeypatch, dim):
+    """The sorted-occupied-cells layout (huge boxes) gives the same lists."""
+    import parsph.neighbours as nb
+
+    calls = []
+    real = nb._sort_sparse
+
+    def spy(*args):
+        calls.append(1)
+        return real(*args)
+
+    monkeypatch.setattr(nb, "_sort_sparse", spy)
+    rng = np.random.default_rng(11)
+    x = rng.uniform(0.0, 1.0, (500, dim))
+    x[0] = 1e12  # a far outlier
+    check_against_brute_force(x, 400, 0.1)
+    assert len(calls) == 1
+    # force the sparse layout on a compact set too
+    monkeypatch.setattr(nb, "_DENSE_PER_PARTICLE", 0)
+    monkeypatch.setattr(nb, "_DENSE_MIN", 0)
+    check_against_brute_force(x[1:], 300, 0.1)
+    check_against_brute_force(np.round(x[1:] * 10) / 10, 499, 0.1)
+    assert len(calls) == 3
+
+
+def test_gather_fill_gives_the_same_lists(monkeypatch):
+    """The gather-and-sort fill (large, incoherently ordered sets) agrees."""
+    import parsph.neighbours as nb
+
+    rng = np.random.default_rng(13)
+    x = rng.uniform(0.0, 1.0, (2000, 3))
+    ref = build_csr(x, 1500, 0.12)
+    monkeypatch.setattr(nb, "_GATHER_MIN_PAIRS", 0)
+    monkeypatch.setattr(nb, "_GATHER_DISORDER", -1.0)
+    got = check_against_brute_force(x, 1500, 0.12)
+    assert np.array_equal(ref[0], got[0]) and np.array_equal(ref[1], got[1])
+
+
+@pytest.mark.parametrize("dim", [1, 2, 3])
+def test_cell_order(dim):
+    rng = np.random.default_rng(17)
+    x = rng.uniform(-1.0, 1.0, (400, dim))
+    perm = cell_order(x, 0.25)
+    assert np.array_equal(np.sort(perm), np.arange(400))
+    cells = np.floor((x[perm] - x.min(axis=0)) / 0.25).astype(np.int64)
+    keys = [tuple(c) for c in cells]
+    assert keys == sorted(keys)
+    # the lists of the reordered set are the relabelled lists
+    ip, ix = build_csr(x, 400, 0.3)
+    ip2, ix2 = build_csr(x[perm], 400, 0.3)
+    inv = np.argsort(perm)
+    for i in range(0, 400, 37):
+        a = np.sort(perm[ix2[ip2[inv[i]] : ip2[inv[i] + 1]]])
+        assert np.array_equal(a, ix[ip[i] : ip[i + 1]])
+    assert cell_order(np.empty((0, dim)), 1.0).shape == (0,)
+
+
+def test_empty_and_degenerate_inputs():
+    for dim in (1, 2, 3):
+        indptr, indices = build_csr(np.empty((0, dim)), 0, 1.0)
+        assert indptr.tolist() == [0] and indices.shape == (0,) and indices.dtype == np.int32
+        x = np.random.default_rng(0).uniform(size=(10, dim))
+        indptr, indices = build_csr(x, 0, 1.0)
+        assert indptr.tolist() == [0] and indices.size == 0
+        indptr, indices = build_csr(x[:1], 1, 1.0)
+        assert indptr.tolist() == [0, 0]
+        # all points at one place: everyone neighbours everyone else
+        indptr, indices = build_csr(np.zeros((5, dim)), 5, 1e-9)
+        assert np.array_equal(np.diff(indptr), [4] * 5)
+    # radius**2 underflows to 0: nothing is strictly closer
+    indptr, indices = build_csr(np.zeros((3, 2)), 3, 1e-200)
+    assert indices.size == 0 and indptr.tolist() == [0, 0, 0, 0]
+
+
+def test_invalid_arguments():
+    x = np.zeros((4, 3))
+    with pytest.raises(ValueError):
+        build_csr(x, 5, 1.0)
+    with pytest.raises(ValueError):
+        build_csr(x, -1, 1.0)
+    for r in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError):
+            build_csr(x, 4, r)
+    with pytest.raises(ValueError):
+        build_csr(np.zeros((4, 4)), 4, 1.0)
+    with pytest.raises(ValueError):
+        build_csr(np.zeros(4), 4, 1.0)
+    bad = np.zeros((4, 2))
+    bad[2, 1] = np.nan
+    with pytest.raises(ValueError):
+        build_csr(bad, 4, 1.0)
+    with pytest.raises(ValueError):
+        build_csr(np.array([[-1e308, 0.0], [1e308, 0.0]]), 2, 1.0)
+
+
+def test_pair_helpers():
+    indptr = np.array([0, 2, 2, 5], dtype=np.int64)
+    assert pair_count(indptr) == 5
+    assert row_lengths(indptr).tolist() == [2, 0, 3]
+    assert row_of_pairs(indptr).tolist() == [0, 0, 2, 2, 2]
+
+
+def test_non_contiguous_and_integer_input():
+    x = np.arange(30, dtype=np.int64).reshape(10, 3)
+    check_against_brute_force(x, 10, 3.0)
+    big = np.random.default_rng(3).uniform(size=(50, 6))
+    check_against_brute_force(big[:, ::2], 50, 0.3)
+
+
+# ----------------------------------------------------------------------- eq. (33)
+
+
+def regular_lattice(dim, n, d):
+    g = np.arange(n) * d
+    return np.array(list(itertools.product(g, repeat=dim)), dtype=np.float64)
+
+
+@pytest.mark.parametrize("dim, n", [(2, 24), (3, 12)])
+def test_density_of_regular_lattice_interior(dim, n):
+    """m = rho d^D, h = 1.2 d: interior density = rho to 1e-3 (paper eq. (33))."""
+    d, rho = 0.01, 1800.0
+    h = K.smoothing_length(d)
+    x = regular_lattice(dim, n, d)
+    # shuffle rows: the result must not depend on the row order
+    x = x[np.random.default_rng(1).permutation(len(x))]
+    m = np.full(len(x), rho * d**dim)
+    indptr, indices = build_csr(x, len(x), K.support_radius(h))
+    density = density_summation(x, m, indptr, indices, h, dim)
+    lo, hi = x.min(axis=0), x.max(axis=0)
+    interior = np.all((x - lo > 2 * h) & (hi - x > 2 * h), axis=1)
+    assert interior.sum() > 10
+    assert np.allclose(density[interior], rho, rtol=1e-3)
+    # near a free surface the sum is deficient (fewer neighbours)
+    assert density[~interior].min() < 0.8 * rho
+
+
+def test_density_includes_self_term_and_matches_direct_sum():
+    rng = np.random.default_rng(5)
+    for dim in (1, 2, 3):
+        x = rng.uniform(0.0, 1.0, (300, dim))
+        m = rng.uniform(0.5, 2.0, 300)
+        h = 0.07
+        n_query = 200
+        indptr, indices = build_csr(x, n_query, 2 * h)
+        out = np.full(n_query, np.nan)
+        rho = density_summation(x, m, indptr, indices, h, dim, out=out)
+        assert rho is out
+        r = np.sqrt(((x[:n_query, None, :] - x[None, :, :]) ** 2).sum(axis=-1))
+        ref = (m[None, :] * K.w_array(r, h, dim)).sum(axis=1)  # includes j = i (r = 0)
+        assert np.allclose(rho, ref, rtol=1e-12, atol=0)
+    # an isolated particle has density m W(0, h)
+    one = np.zeros((1, 3))
+    rho = density_summation(one, np.array([2.0]), *build_csr(one, 1, 1.0), 0.5, 3)
+    assert rho[0] == pytest.approx(2.0 * K.normalisation(0.5, 3))
+
+
+def test_density_argument_checks():
+    x = np.zeros((3, 2))
+    indptr, indices = build_csr(x, 3, 1.0)
+    with pytest.raises(ValueError):
+        density_summation(x, np.ones(3), indptr, indices, 0.5, 3)
+    with pytest.raises(ValueError):
+        density_summation(x, np.ones(2), indptr, indices, 0.5, 2)
+    with pytest.raises(ValueError):
+        density_summation(x, np.ones(3), indptr, indices, 0.5, 2, out=np.empty(2))
+    empty = density_summation(x, np.ones(3), np.zeros(1, np.int64), indices[:0], 0.5, 2)
+    assert empty.shape == (0,)

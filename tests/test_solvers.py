@@ -1,0 +1,313 @@
+"""solvers: distributed sparse systems on PETSc, checked against scipy direct solves.
+
+Every rank builds the triplets of its own contiguous block of rows; the reference matrix
+is built identically, in full, on every rank. Assertions hold at any rank count.
+"""
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+import solvers
+from parsph.errors import NumericalError
+from solvers import LinearSystem, SolverError, petsc_env
+
+pytestmark = pytest.mark.petsc
+
+#: Tolerance of the KSP when a test compares with a direct solve, and of the comparison.
+KSP_RTOL_EXACT = 1e-13
+COMPARE_RTOL = 1e-10
+
+
+def block_rows(comm, n_points):
+    """Points owned by this rank when ``n_points`` are split in contiguous blocks."""
+    return n_points // comm.size + (comm.rank < n_points % comm.size)
+
+
+def poisson_triplets(n, rows, neumann=False):
+    """Rows ``rows`` of the 5-point Laplacian on an ``n`` x ``n`` grid (unit spacing).
+
+    Dirichlet (diagonal 4) by default; ``neumann`` puts the neighbour count on the
+    diagonal, which makes the constant the null space.
+    """
+    rows = np.asarray(rows, dtype=np.int64)
+    i, j = np.divmod(rows, n)
+    r, c, v = [], [], []
+    degree = np.zeros(rows.size)
+    for di, dj in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+        ii, jj = i + di, j + dj
+        inside = (ii >= 0) & (ii < n) & (jj >= 0) & (jj < n)
+        degree += inside
+        r.append(rows[inside])
+        c.append((ii * n + jj)[inside])
+        v.append(np.full(inside.sum(), -1.0))
+    r.append(rows)
+    c.append(rows)
+    v.append(degree if neumann else np.full(rows.size, 4.0))
+    return np.concatenate(r), np.concatenate(c), np.concatenate(v)
+
+
+def full_matrix(n_global, triplets):
+    rows, cols, values = triplets
+    return sp.coo_matrix((values, (rows, cols)), shape=(n_global, n_global)).tocsr()
+
+
+def rhs_of(n_global):
+    return np.random.default_rng(7).uniform(-1.0, 1.0, n_global)
+
+
+def assert_matches(x, reference):
+    scale = np.abs(reference).max(initial=0.0)
+    np.testing.assert_allclose(x, reference, rtol=COMPARE_RTOL, atol=COMPARE_RTOL * scale)
+
+
+def solve_poisson(comm, n, **kwargs):
+    """Assemble and solve the Dirichlet Poisson problem; return (system, x, info, slice)."""
+    system = LinearSystem(comm, "tst_", block_rows(comm, n * n), **kwargs)
+    first, stop = system.owned_range
+    system.assemble(*poisson_triplets(n, np.arange(first, stop)))
+    x, info = system.solve(rhs_of(n * n)[first:stop])
+    return system, x, info, slice(first, stop)
+
+
+@pytest.mark.serial_only
+def test_import_does_not_load_petsc():
+    code = "import sys, solvers; assert 'petsc4py' not in sys.modules, sorted(sys.modules)"
+    subprocess.run([sys.executable, "-c", code], check=True, capture_output=True)
+
+
+def test_cg_boomeramg_matches_direct_solve(comm):
+    n = 64
+    system, x, info, owned = solve_poisson(comm, n, rtol=KSP_RTOL_EXACT)
+    with system:
+        assert system.ksp.getType() == "cg"
+        assert system.ksp.getPC().getType() == "hypre"
+        reference = spla.spsolve(full_matrix(n * n, poisson_triplets(n, np.arange(n * n))), rhs_of(n * n))
+        assert_matches(x, reference[owned])
+        assert info["reason"] > 0 and info["reason_name"].startswith("CONVERGED")
+        assert info["iterations"] <= 20
+        assert info["time_s"] >= 0.0 and info["residual_norm"] >= 0.0
+
+
+def test_boomeramg_iterations_flat_under_refinement(comm):
+    iterations = []
+    for n in (64, 256):
+        system, _, info, _ = solve_poisson(comm, n)
+        system.destroy()
+        iterations.append(info["iterations"])
+    assert iterations[1] <= 1.5 * iterations[0], iterations
+
+
+def test_duplicates_are_summed(comm):
+    n = 24
+    with LinearSystem(comm, "tst_", block_rows(comm, n * n), rtol=KSP_RTOL_EXACT) as system:
+        first, stop = system.owned_range
+        rows, cols, values = poisson_triplets(n, np.arange(first, stop))
+        order = np.random.default_rng(comm.rank).permutation(2 * rows.size)
+        doubled = (np.concatenate([rows, rows])[order].astype(np.int32),
+                   np.concatenate([cols, cols])[order].astype(np.int32),
+                   np.concatenate([0.25 * values, 0.75 * values])[order])
+        system.assemble(*doubled)
+        x, _ = system.solve(rhs_of(n * n)[first:stop])
+        reference = spla.spsolve(full_matrix(n * n, poisson_triplets(n, np.arange(n * n))), rhs_of(n * n))
+        assert_matches(x, reference[first:stop])
+
+
+def coupled_triplets(n, points, coupling):
+    """Rows of points ``points`` of kron(L, coupling): a 2-component operator, interleaved."""
+    r, c, v = poisson_triplets(n, points)
+    bs = coupling.shape[0]
+    a, b = np.divmod(np.arange(bs * bs), bs)
+    rows = (r[:, None] * bs + a).ravel()
+    cols = (c[:, None] * bs + b).ravel()
+    values = (v[:, None] * coupling.ravel()).ravel()
+    return rows, cols, values
+
+
+def test_block_size_two_gmres_matches_direct_solve(comm):
+    n, bs = 24, 2
+    coupling = np.array([[2.0, -1.0], [0.5, 2.0]])  # not symmetric: GMRES
+    n_points = block_rows(comm, n * n)
+    with LinearSystem(comm, "tst_", n_points, block_size=bs, ksp_type="gmres",
+                      rtol=KSP_RTOL_EXACT) as system:
+        assert system.symmetric is False
+        first, stop = system.owned_range
+        assert (first % bs, stop - first) == (0, n_points * bs)
+        system.assemble(*coupled_triplets(n, np.arange(first // bs, stop // bs), coupling))
+        assert system.mat.getBlockSize() == bs
+        rhs = rhs_of(bs * n * n)[first:stop].reshape(-1, bs)
+        x, info = system.solve(rhs)
+        assert x.shape == rhs.shape
+        full = full_matrix(bs * n * n, coupled_triplets(n, np.arange(n * n), coupling))
+        assert_matches(x.ravel(), spla.spsolve(full, rhs_of(bs * n * n))[first:stop])
+
+
+def test_same_pattern_reuses_matrix(comm):
+    n = 32
+    total = n * n
+    with LinearSystem(comm, "tst_", block_rows(comm, total), rtol=KSP_RTOL_EXACT) as system:
+        first, stop = system.owned_range
+        rows, cols, values = poisson_triplets(n, np.arange(first, stop))
+        system.assemble(rows, cols, values)
+        system.solve(rhs_of(total)[first:stop])
+        mat, ksp = system.mat, system.ksp
+
+        new_values = 2.0 * values + (rows == cols) * 0.5  # same pattern, new values
+        system.assemble(rows, cols, new_values)
+        assert system.mat is mat and system.ksp is ksp and system.n_builds == 1
+        x, _ = system.solve(rhs_of(total)[first:stop])
+        full_rows, full_cols, full_values = poisson_triplets(n, np.arange(total))
+        reference = spla.spsolve(
+            full_matrix(total, (full_rows, full_cols, 2.0 * full_values + (full_rows == full_cols) * 0.5)),
+            rhs_of(total),
+        )
+        assert_matches(x, reference[first:stop])
+
+        order = np.random.default_rng(1 + comm.rank).permutation(rows.size)  # same pattern, reordered
+        system.assemble(rows[order], cols[order], new_values[order])
+        assert system.mat is mat and system.n_builds == 1
+        x, _ = system.solve(rhs_of(total)[first:stop])
+        assert_matches(x, reference[first:stop])
+
+
+def test_pattern_change_on_one_rank_rebuilds_everywhere(comm):
+    n = 32
+    total = n * n
+    with LinearSystem(comm, "tst_", block_rows(comm, total), ksp_type="gmres", rtol=KSP_RTOL_EXACT) as system:
+        first, stop = system.owned_range
+        system.assemble(*poisson_triplets(n, np.arange(first, stop)))
+        system.solve(rhs_of(total)[first:stop])
+        old = system.mat
+
+        last_first = comm.allgather(first)[-1]  # the last rank adds couplings (i, i + 2)
+
+        def with_extra(rows_wanted):
+            rows, cols, values = poisson_triplets(n, rows_wanted)
+            extra = rows_wanted[(rows_wanted >= last_first) & (rows_wanted + 2 < total)]
+            return (np.concatenate([rows, extra]), np.concatenate([cols, extra + 2]),
+                    np.concatenate([values, np.full(extra.size, 0.3)]))
+
+        system.assemble(*with_extra(np.arange(first, stop)))
+        assert system.mat is not old and system.n_builds == 2
+        x, _ = system.solve(rhs_of(total)[first:stop])
+        reference = spla.spsolve(full_matrix(total, with_extra(np.arange(total))), rhs_of(total))
+        assert_matches(x, reference[first:stop])
+
+
+def test_options_prefix_overrides_defaults(comm):
+    PETSc = petsc_env.petsc()
+    options = PETSc.Options()
+    options.setValue("tst_ksp_type", "gmres")
+    options.setValue("tst_ksp_rtol", "1e-9")
+    try:
+        with LinearSystem(comm, "tst", 4) as system:
+            assert system.prefix == "tst_"
+            assert system.ksp.getOptionsPrefix() == "tst_"
+            assert system.ksp.getType() == "gmres"
+            assert system.ksp.getTolerances()[0] == pytest.approx(1e-9)
+    finally:
+        options.delValue("tst_ksp_type")
+        options.delValue("tst_ksp_rtol")
+    with LinearSystem(comm, "tst_", 4) as system:
+        assert system.ksp.getType() == "cg"
+
+
+def test_non_convergence_raises_on_every_rank(comm):
+    n = 32
+    with LinearSystem(comm, "tst_", block_rows(comm, n * n), pc_type="jacobi", rtol=1e-14, max_it=1) as system:
+        first, stop = system.owned_range
+        system.assemble(*poisson_triplets(n, np.arange(first, stop)))
+        with pytest.raises(SolverError, match="DIVERGED_MAX_IT") as excinfo:
+            system.solve(rhs_of(n * n)[first:stop])
+    message = str(excinfo.value)
+    assert isinstance(excinfo.value, NumericalError)
+    assert "'tst_'" in message and "1 iterations" in message and "-tst_pc_type" in message
+
+
+def test_rows_not_owned_raise_value_error_on_every_rank(comm):
+    with LinearSystem(comm, "tst_", block_rows(comm, 100)) as system:
+        first, stop = system.owned_range
+        rows = np.arange(first, stop + 1)  # one row past the owned block, on every rank
+        stop_0 = comm.allgather(stop)[0]  # every rank raises rank 0's error
+        with pytest.raises(ValueError, match=f"rank 0: .*rows in {stop_0}..{stop_0}"):
+            system.assemble(rows, rows, np.ones(rows.size))
+        assert system.mat is None
+
+        rows = np.arange(first, stop) if comm.rank else np.arange(first, stop) - 1
+        with pytest.raises(ValueError, match="rank 0: .*rows in -1..-1"):  # rank 0 only
+            system.assemble(rows, rows, np.ones(rows.size))
+
+        rows = np.arange(first, stop)
+        with pytest.raises(ValueError, match="columns"):
+            system.assemble(rows, rows + system.n_global, np.ones(rows.size))
+        with pytest.raises(SolverError, match="NaN"):
+            system.assemble(rows, rows, np.full(rows.size, np.nan))
+        system.assemble(rows, rows, np.ones(rows.size))
+        with pytest.raises(ValueError, match="rhs has"):
+            system.solve(np.ones(rows.size + 1))
+
+
+def test_initial_guess_is_used(comm):
+    system, x, info, owned = solve_poisson(comm, 32)
+    with system:
+        assert info["iterations"] > 0
+        x_again, info_again = system.solve(rhs_of(32 * 32)[owned], x0=x)
+        assert info_again["iterations"] == 0
+        np.testing.assert_array_equal(x_again, x)
+
+
+def test_constant_nullspace_neumann(comm):
+    n = 16
+    total = n * n
+    with LinearSystem(comm, "tst_", block_rows(comm, total), rtol=KSP_RTOL_EXACT) as system:
+        system.set_nullspace_constant()
+        first, stop = system.owned_range
+        system.assemble(*poisson_triplets(n, np.arange(first, stop), neumann=True))
+        rhs = rhs_of(total)  # not consistent: PETSc removes the constant part
+        x, _ = system.solve(rhs[first:stop])
+        x -= comm.allreduce(x.sum()) / total
+        dense = full_matrix(total, poisson_triplets(n, np.arange(total), neumann=True)).toarray()
+        reference = np.linalg.lstsq(dense, rhs - rhs.mean(), rcond=None)[0]
+        assert_matches(x, reference[first:stop] - reference.mean())
+
+
+def test_rank_without_rows_takes_part(comm):
+    n = 16
+    total = n * n
+    n_local = total  # one rank: it owns everything; more ranks: rank 0 owns nothing
+    if comm.size > 1:
+        others, rank = comm.size - 1, comm.rank - 1
+        n_local = 0 if comm.rank == 0 else total // others + (rank < total % others)
+    with LinearSystem(comm, "tst_", n_local, rtol=KSP_RTOL_EXACT) as system:
+        assert system.n_global == total
+        first, stop = system.owned_range
+        system.assemble(*poisson_triplets(n, np.arange(first, stop)))
+        x, _ = system.solve(rhs_of(total)[first:stop])
+        assert x.size == n_local
+        reference = spla.spsolve(full_matrix(total, poisson_triplets(n, np.arange(total))), rhs_of(total))
+        assert_matches(x, reference[first:stop])
+
+
+def test_destroy_is_idempotent_and_solve_needs_assembly(comm):
+    system = LinearSystem(comm, "tst_", 3)
+    with pytest.raises(RuntimeError, match="assemble"):
+        system.solve(np.zeros(3))
+    with system:
+        pass
+    assert system.ksp is None and system.mat is None
+    system.destroy()
+
+
+def test_info_and_late_init(comm):
+    info = petsc_env.info()
+    assert info["petsc_version"].count(".") == 2
+    assert isinstance(info["hypre"], bool)
+    assert info["int_size"] in (32, 64) and info["scalar_type"] == "float64"
+    PETSc = solvers.init(["-tst_late_option", "3"])  # already initialised: goes to the database
+    try:
+        assert PETSc.Options().getInt("tst_late_option") == 3
+    finally:
+        PETSc.Options().delValue("tst_late_option")
