@@ -357,3 +357,41 @@ class Halo:
                 np.add.at(res, self.send_index, b)
             out[name] = res
         return out
+
+
+def proximity_halo(comm, x_owned, select, radius: float, lo, hi) -> Halo:
+    """Collective: send the selected owned rows to every rank whose box is within reach.
+
+    Parameters
+    ----------
+    x_owned : ndarray (n_owned, dim)
+        Current positions of the owned rows (m).
+    select : ndarray of bool (n_owned,)
+        Rows that may be sent (e.g. wall particles).
+    radius : float
+        Reach (m): a row goes to rank ``q`` if it lies within ``radius`` of ``q``'s box.
+    lo, hi : ndarray (dim,)
+        This rank's box (e.g. the bounding box of the particles it needs neighbours
+        for); an empty box (lo > hi) receives nothing.
+
+    Notes
+    -----
+    Unlike :meth:`Halo.build`, the boxes need not come from a partition: each rank
+    announces the box it needs data around (one ``allgather``), so this serves
+    neighbourhoods in the current configuration when ownership follows another one
+    (TLSPH particles are owned by their reference position). Rows are also sent to
+    this rank itself when they lie near its box, so the result is the complete set of
+    selected rows near the box. No periodic images.
+    """
+    boxes = comm.allgather((np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)))
+    x = np.asarray(x_owned, dtype=float)
+    rows = np.flatnonzero(np.asarray(select, dtype=bool))
+    send = []
+    for blo, bhi in boxes:
+        if len(rows) == 0 or np.any(blo > bhi):
+            send.append(np.zeros(0, dtype=np.int64))
+            continue
+        xs = x[rows]
+        near = np.all((xs >= blo - radius) & (xs <= bhi + radius), axis=1)
+        send.append(rows[near])
+    return Halo.from_send_lists(comm, send, None, n_owned=len(x))

@@ -37,3 +37,8 @@ def broadcast(comm, value, root: int = 0):
 
 def barrier(comm) -> None:
     comm.Barrier()
+
+
+def allgather(comm, value) -> list:
+    """Every rank's value, on every rank (small objects only)."""
+    return comm.allgather(value)

@@ -150,6 +150,11 @@ def _generate_item(comm, scene: Scene, lat: _Lattice, first_id: int):
     return x, ids, count
 
 
+def _density(material) -> float:
+    """Reference density rho_0 of a material: (1 - n_0) rho_s for soils (section 3.1)."""
+    return getattr(material, "reference_density", material.density)
+
+
 def generate(comm, scene: Scene) -> dict:
     """Collective: this rank's share of all particles (before partitioning).
 
@@ -163,7 +168,7 @@ def generate(comm, scene: Scene) -> dict:
     names = list(scene.materials)
     mats = [scene.materials[n] for n in names]
     fluid_mats = [m for m in mats if m.phase == 1]
-    wall_density = (fluid_mats or mats)[0].density if mats else 1000.0
+    wall_density = _density(fluid_mats[0]) if fluid_mats else 1000.0
     out = {k: [] for k in ("id", "x", "v", "m", "phase", "material")}
     next_id = 0
     for is_wall, items in ((False, scene.bodies), (True, scene.walls)):
@@ -175,7 +180,7 @@ def generate(comm, scene: Scene) -> dict:
                 density, phase, mat, vel = wall_density, PHASE_WALL, -1, ()
             else:
                 material = scene.materials[item.material]
-                density, phase, mat, vel = (material.density, material.phase,
+                density, phase, mat, vel = (_density(material), material.phase,
                                             names.index(item.material), item.velocity)
             out["id"].append(ids)
             out["x"].append(x)

@@ -16,7 +16,7 @@ from parsph.schema import spec
 PHASE_SOLID, PHASE_FLUID, PHASE_WALL = 0, 1, 2
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Kinematic:
     """Particles that move with their initial velocity and feel no force.
 
@@ -31,7 +31,7 @@ class Kinematic:
     stages = ("kinematics",)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Newtonian:
     """Incompressible Newtonian fluid (IISPH, paper section 4 with a constant viscosity)."""
 
@@ -44,9 +44,79 @@ class Newtonian:
     stages = ("iisph",)
 
 
+@dataclass(frozen=True, kw_only=True)
+class Bingham:
+    """Bingham fluid for fluidised soil, eqs. (38)-(41): yield stress tau_y = c + p tan(phi)."""
+
+    model: str = spec(doc="material model")
+    density: float = spec(doc="density rho_0 (kg/m^3)", gt=0.0)
+    viscosity: float = spec(1.0e-3, doc="initial viscosity nu_f0 (m^2/s)", ge=0.0)
+    viscosity_max: float = spec(1.0e4, doc="viscosity cap nu_fMAX (m^2/s), eq. (40)", gt=0.0)
+    cohesion: float = spec(0.0, doc="cohesion c (Pa) of the yield stress", ge=0.0)
+    friction_angle: float = spec(0.0, doc="friction angle phi' (degrees)", ge=0.0, lt=90.0)
+    eddy_viscosity: bool = spec(False, doc="add the Smagorinsky eddy viscosity, eq. (41)")
+
+    phase = PHASE_FLUID
+    stages = ("iisph",)
+
+
+@dataclass(frozen=True, kw_only=True)
+class _Solid:
+    """Common parameters of the TLSPH soil models (section 3)."""
+
+    model: str = spec(doc="material model")
+    density: float = spec(doc="grain density rho_s (kg/m^3); rho_0 = (1 - n_0) rho_s", gt=0.0)
+    porosity: float = spec(0.0, doc="initial porosity n_0 (-)", ge=0.0, lt=1.0)
+    update_porosity: bool = spec(False, doc="update the porosity with eq. (5)")
+    poisson_ratio: float = spec(doc="Poisson's ratio nu (-)", gt=-1.0, lt=0.5)
+
+    phase = PHASE_SOLID
+    stages = ("tlsph",)
+
+    @property
+    def reference_density(self) -> float:
+        """rho_0 = (1 - n_0) rho_s (section 3.1)."""
+        return (1.0 - self.porosity) * self.density
+
+
+@dataclass(frozen=True, kw_only=True)
+class Hencky(_Solid):
+    """Hencky hyperelastic solid, eqs. (15)-(16)."""
+
+    young_modulus: float = spec(doc="Young's modulus E (Pa)", gt=0.0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class DruckerPrager(_Solid):
+    """Hencky elasticity with non-associative Drucker-Prager plasticity, Appendix A."""
+
+    young_modulus: float = spec(doc="Young's modulus E (Pa)", gt=0.0)
+    friction_angle: float = spec(doc="friction angle phi' (degrees)", ge=0.0, lt=90.0)
+    cohesion: float = spec(doc="initial cohesion c_0 (Pa)", ge=0.0)
+    dilatancy_angle: float = spec(0.0, doc="dilatancy angle psi (degrees)", ge=0.0, lt=90.0)
+    hardening: float = spec(0.0, doc="hardening modulus H (Pa), negative = softening")
+    residual_cohesion: float = spec(0.0, doc="cohesion never softens below this (Pa)", ge=0.0)
+
+
+@dataclass(frozen=True, kw_only=True)
+class CamClay(_Solid):
+    """Hencky-type elasticity with modified Cam-Clay plasticity, Appendix B."""
+
+    kappa: float = spec(doc="gradient of the swelling line kappa (-)", gt=0.0)
+    lam: float = spec(doc="gradient of the normal consolidation line lambda (-)", gt=0.0)
+    critical_state_ratio: float = spec(1.0, doc="M, slope of the critical state line (-)",
+                                       gt=0.0)
+    preconsolidation: float = spec(doc="initial pre-consolidation pressure p_c (Pa)", gt=0.0)
+    initial_pressure: float = spec(doc="initial isotropic effective stress p'_0 (Pa)", gt=0.0)
+
+
 MODELS = {
     "kinematic": Kinematic,
     "newtonian": Newtonian,
+    "bingham": Bingham,
+    "hencky": Hencky,
+    "drucker_prager": DruckerPrager,
+    "cam_clay": CamClay,
 }
 
 
@@ -60,4 +130,8 @@ def build_material(name: str, raw, source: str):
         known = ", ".join(sorted(MODELS))
         raise SceneError(f"{source}: key '{path}.model': unknown material model {model!r}; "
                          f"available models: {known}")
-    return schema.build(MODELS[model], raw, path, source)
+    material = schema.build(MODELS[model], raw, path, source)
+    if model == "cam_clay" and material.lam <= material.kappa:
+        raise SceneError(f"{source}: key '{path}.lam': lambda ({material.lam}) must exceed kappa "
+                         f"({material.kappa})")
+    return material

@@ -41,9 +41,9 @@ STAGES = {
                             "positions advance with the particle velocity, no force"),
     "density": StageSpec("density", "parsph.diagnostics", "DensityStage",
                          "SPH density summation, eq. (33) (diagnostic field rho)"),
-    "iisph": StageSpec("iisph", "parsph.fluid", "IISPH",
+    "iisph": StageSpec("iisph", "parsph.fluid.stage", "IISPH",
                        "implicit incompressible SPH fluid, eqs. (28)-(41)", available=False),
-    "tlsph": StageSpec("tlsph", "parsph.solid", "TLSPH",
+    "tlsph": StageSpec("tlsph", "parsph.solid.stage", "TLSPH",
                        "total-Lagrangian elastoplastic solid, eqs. (2)-(27)", available=False),
 }
 
@@ -80,6 +80,18 @@ def plan(scene, strict: bool = True) -> list[StageSpec]:
             if stage not in names:
                 names.append(stage)
     return [STAGES[n] for n in names]
+
+
+def layout(stages) -> str:
+    """How particles are distributed over the ranks for this set of stages.
+
+    ``"reference"``: a TLSPH-only scene; ownership, halo and neighbour lists follow the
+    reference positions X and are built once (section 3: the reference configuration is
+    fixed). ``"current"``: anything with moving neighbourhoods; ownership follows the
+    current positions x and the halo and neighbour lists are rebuilt every step.
+    """
+    names = {s.name for s in stages}
+    return "reference" if names == {"tlsph"} else "current"
 
 
 def uses_petsc(stages) -> bool:

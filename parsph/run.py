@@ -32,7 +32,7 @@ from parsph.kernel import smoothing_length, support_radius
 from parsph.materials import PHASE_FLUID, PHASE_SOLID, PHASE_WALL
 from parsph.neighbours import build_csr
 from parsph.particles import ParticleSet
-from parsph.pipeline import INFRASTRUCTURE, plan
+from parsph.pipeline import INFRASTRUCTURE, layout, plan
 
 log = logging.getLogger("parsph")
 
@@ -53,9 +53,52 @@ class Context:
     halo: Halo = None
     indptr: np.ndarray = None
     indices: np.ndarray = None
+    layout: str = "current"
+    key: str = "x"
+    materials: list = field(default_factory=list)
     time: float = 0.0
     step: int = 0
     timers: dict = field(default_factory=dict)
+
+    @property
+    def n_owned(self) -> int:
+        return self.particles.n_owned
+
+    def update_halo(self, names) -> None:
+        """Refresh the halo rows of the named fields from their owners (same pattern)."""
+        p = self.particles
+        fresh = self.halo.exchange(p.owned_fields(names), shift_fields=("x", "X"))
+        for name, rows in fresh.items():
+            p[name][p.n_owned:] = rows
+
+    def body_acceleration(self, t: float) -> np.ndarray:
+        """g (and, once loading lands, the earthquake record) at time t (m/s^2)."""
+        return self.gravity
+
+    @property
+    def gravity(self) -> np.ndarray:
+        return np.asarray(self.scene.gravity.g, dtype=float)
+
+    def nearby(self, select, names, radius: float | None = None, around=None) -> dict:
+        """Collective: owned rows of every rank (``select`` mask) near this rank's particles.
+
+        ``around`` (bool mask of owned rows, default all) chooses the particles whose
+        current bounding box, widened by ``radius`` (default 2h), defines "near". Returns
+        the named fields of those rows, this rank's own included. Used for neighbours in
+        the current configuration when ownership follows the reference one (walls seen
+        by TLSPH particles).
+        """
+        from decomposition.halo import proximity_halo
+
+        p = self.particles
+        x = p["x"][: p.n_owned]
+        pts = x if around is None else x[around]
+        if len(pts):
+            lo, hi = pts.min(axis=0), pts.max(axis=0)
+        else:
+            lo, hi = np.full(self.dim, np.inf), np.full(self.dim, -np.inf)
+        halo = proximity_halo(self.comm, x, select, radius or self.radius, lo, hi)
+        return halo.exchange(p.owned_fields(names), shift_fields=())
 
 
 def prepare_output(comm, out: str) -> None:
@@ -106,31 +149,41 @@ def _check_state(ctx) -> None:
 
 
 def _distribute(ctx, force: bool = False) -> None:
-    """Migrate particles to their owners; rebuild the partition when unbalanced."""
-    p, comm = ctx.particles, ctx.comm
+    """Migrate particles to their owners; rebuild the partition when unbalanced.
+
+    The partition follows ``ctx.key``: current positions ``x`` (fluids: particles
+    migrate as they move), or reference positions ``X`` (TLSPH solids: ownership, halo
+    and neighbour lists are fixed for the whole run).
+    """
+    p, comm, key = ctx.particles, ctx.comm, ctx.key
     owned = p.owned_fields()
     if ctx.box.periodic and any(ctx.box.periodic):
         owned["x"] = ctx.box.wrap(owned["x"])
     if force or ctx.rcb is None or \
             imbalance(comm, p.n_owned) > ctx.scene.run.rebalance_tolerance:
-        ctx.rcb = RCB.build(comm, owned["x"], ctx.box)
-    dest = ctx.rcb.owner(owned["x"])
-    p.set_owned(migrate(comm, owned, dest))
+        ctx.rcb = RCB.build(comm, owned[key], ctx.box)
+    p.set_owned(migrate(comm, owned, ctx.rcb.owner(owned[key])))
 
 
 def refresh(ctx, force_partition: bool = False) -> None:
-    """Migrate, refresh the halo, rebuild neighbour lists (infrastructure of every step)."""
+    """Migrate, refresh the halo, rebuild neighbour lists (infrastructure of every step).
+
+    In the reference layout this runs once: the reference neighbourhood never changes,
+    and stages refresh halo values with :meth:`Context.update_halo`.
+    """
+    if ctx.layout == "reference" and ctx.halo is not None:
+        return
     _timed(ctx, "migrate", _distribute, ctx, force_partition)
-    p = ctx.particles
+    p, key = ctx.particles, ctx.key
 
     def halo():
-        ctx.halo = Halo.build(ctx.comm, ctx.rcb, p["x"][: p.n_owned], ctx.radius, ctx.box)
-        p.set_halo(ctx.halo.exchange(p.owned_fields(), shift_fields=("x",)))
+        ctx.halo = Halo.build(ctx.comm, ctx.rcb, p[key][: p.n_owned], ctx.radius, ctx.box)
+        p.set_halo(ctx.halo.exchange(p.owned_fields(), shift_fields=("x", "X")))
 
     _timed(ctx, "halo", halo)
 
     def neighbours():
-        ctx.indptr, ctx.indices = build_csr(p["x"], p.n_owned, ctx.radius)
+        ctx.indptr, ctx.indices = build_csr(p[key], p.n_owned, ctx.radius)
 
     _timed(ctx, "neighbours", neighbours)
 
@@ -196,15 +249,24 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None)
     dim, d = scene.domain.dim, scene.domain.particle_size
     h = smoothing_length(d)
     box = Box(tuple(scene.domain.lo), tuple(scene.domain.hi), tuple(scene.domain.periodic))
-    particles = ParticleSet(dim, generate(comm, scene))
+    fields = generate(comm, scene)
+    fields["X"] = fields["x"].copy()  # reference configuration (section 3)
+    particles = ParticleSet(dim, fields)
+    for name in ("eps_p", "p", "porosity"):  # written to every frame (zeros if unused)
+        particles.add_field(name)
+    lay = layout(specs)
     ctx = Context(scene=scene, comm=comm, particles=particles, box=box, dim=dim, d=d, h=h,
-                  radius=support_radius(h))
+                  radius=support_radius(h), layout=lay, key="X" if lay == "reference" else "x",
+                  materials=list(scene.materials.values()))
     if any(s.name == "iisph" for s in specs):  # only then is petsc4py imported
         import solvers
 
         solvers.init(list(petsc_args))
     stages = [spec.load()(ctx) for spec in specs]
     refresh(ctx, force_partition=True)
+    for s in stages:
+        if hasattr(s, "setup"):
+            _timed(ctx, s.name, s.setup, ctx)
     for s in stages:
         if hasattr(s, "after_refresh"):
             _timed(ctx, s.name, s.after_refresh, ctx)
@@ -214,7 +276,8 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None)
              comm.size, ", ".join(s.name for s in specs))
     h5 = os.path.join(out, "particles.h5")
     xdmf = os.path.join(out, "particles.xdmf")
-    frame_fields = ("id", "x", "v", "phase", "eps_p", "p", "porosity", "rho")
+    frame_fields = ("id", "x", "v", "phase", "eps_p", "p", "porosity", "rho") + tuple(
+        f for s in stages for f in getattr(s, "output_fields", ()))
     attrs = {"scene": scene.name, "particle_size": d, "ranks": comm.size,
              "scene_source": scene.source}
 

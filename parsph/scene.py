@@ -18,6 +18,8 @@ import numpy as np
 from parsph import schema
 from parsph.errors import SceneError
 from parsph.materials import build_material
+from parsph.params_fluid import FluidNumerics
+from parsph.params_solid import SolidNumerics
 from parsph.schema import spec
 
 SIDES = {2: ("left", "right", "bottom", "top"),
@@ -105,6 +107,8 @@ class Scene:
     run: Run
     output: Output
     gravity: Gravity = field(default_factory=Gravity)
+    solid: SolidNumerics = field(default_factory=SolidNumerics)
+    fluid: FluidNumerics = field(default_factory=FluidNumerics)
     bodies: tuple[Body, ...] = spec((), doc="[[bodies]] tables")
     walls: tuple[Wall, ...] = spec((), doc="[[walls]] tables")
     materials: dict = field(default_factory=dict, init=False, compare=False)

@@ -3,11 +3,14 @@ from __future__ import annotations
 
 from parsph import schema
 from parsph.materials import MODELS
+from parsph.params_fluid import FluidNumerics
+from parsph.params_solid import SolidNumerics
 from parsph.scene import Body, Domain, Gravity, Output, Run, SceneInfo, Wall
 
 SECTIONS = (("[scene]", SceneInfo, "scene."), ("[domain]", Domain, "domain."),
             ("[run]", Run, "run."), ("[output]", Output, "output."),
-            ("[gravity]", Gravity, "gravity."), ("[[bodies]]", Body, "bodies.N."),
+            ("[gravity]", Gravity, "gravity."), ("[solid]", SolidNumerics, "solid."),
+            ("[fluid]", FluidNumerics, "fluid."), ("[[bodies]]", Body, "bodies.N."),
             ("[[walls]]", Wall, "walls.N."))
 
 
