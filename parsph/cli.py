@@ -2,20 +2,21 @@
 
 Every verb works the same on 1 rank and under ``mpirun -n N``. Bad input ends with one
 message on rank 0, no traceback, exit status 2, on every rank; a numerical failure with
-exit status 3. A bug (any other exception) prints its traceback and aborts all ranks so
+exit status 3; a run stopped by SIGTERM/SIGUSR1 writes a checkpoint and exits with 4. A bug (any other exception) prints its traceback and aborts all ranks so
 that none hangs.
 """
 from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 import traceback
 
 from parsph import __version__
-from parsph.errors import NumericalError, ParsphError
+from parsph.errors import NumericalError, ParsphError, Preempted
 
-EXIT_OK, EXIT_BUG, EXIT_INPUT, EXIT_NUMERICAL = 0, 1, 2, 3
+EXIT_OK, EXIT_BUG, EXIT_INPUT, EXIT_NUMERICAL, EXIT_PREEMPTED = 0, 1, 2, 3, 4
 VERBS = ("run", "check", "scenes", "info", "plot")
 DEFAULT_SCENE = "hydrostatic"
 
@@ -38,7 +39,8 @@ def _parser() -> _Parser:
     r.add_argument("--out", default=None, help="output directory (default: out/SCENE)")
     r.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scene key, e.g. --set domain.particle_size=0.01")
-    r.add_argument("--restart", default=None, metavar="FILE", help="continue from a checkpoint")
+    r.add_argument("--restart", default=None, metavar="FILE",
+                   help="continue from DIR/checkpoint.h5 (output goes on in DIR unless --out)")
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
     r.add_argument("-v", "--verbose", action="store_true", help="debug logging on rank 0")
     c = sub.add_parser("check", help="print stages, particle counts per rank and memory")
@@ -102,17 +104,20 @@ def cmd_run(comm, args, petsc) -> int:
     from parsph.pipeline import plan, uses_petsc
     from parsph.run import run
 
-    if args.restart:
-        raise ParsphError("--restart: checkpoints are not written by this version of parsph yet; "
-                          "start the run from its scene")
     scene = _load(comm, args.scene, args.overrides)
     specs = plan(scene)
     if petsc and not uses_petsc(specs) and comm.rank == 0:
         logging.getLogger("parsph").warning(
             "PETSc options %s ignored: scene '%s' solves no implicit system", " ".join(petsc),
             scene.name)
-    out = args.out or f"out/{scene.name}"
-    run(scene, out, comm=comm, petsc_args=petsc, progress=False if args.no_progress else None)
+    if args.out:
+        out = args.out
+    elif args.restart:
+        out = os.path.dirname(os.path.abspath(args.restart))
+    else:
+        out = f"out/{scene.name}"
+    run(scene, out, comm=comm, petsc_args=petsc, progress=False if args.no_progress else None,
+        restart=args.restart)
     return EXIT_OK
 
 
@@ -186,6 +191,10 @@ def main(argv=None) -> int:
         if args.verb == "info":
             return cmd_info(comm)
         return cmd_plot(comm, args)
+    except Preempted as exc:
+        if comm.rank == 0:
+            print(f"parsph: {exc}", file=sys.stderr)
+        return EXIT_PREEMPTED
     except NumericalError as exc:
         if comm.rank == 0:
             print(f"parsph: numerical failure: {exc}", file=sys.stderr)

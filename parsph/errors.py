@@ -16,3 +16,7 @@ class SceneError(ParsphError):
 
 class NumericalError(ParsphError):
     """A run stopped on a NaN/inf, a diverged solve or a particle leaving the domain."""
+
+
+class Preempted(ParsphError):
+    """The run was asked to stop (SIGTERM/SIGUSR1) and wrote a checkpoint to restart from."""

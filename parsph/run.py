@@ -24,7 +24,7 @@ from decomposition.box import Box
 from decomposition.exchange import migrate
 from decomposition.halo import Halo
 from decomposition.partition import RCB, imbalance
-from decomposition.reduce import global_max, global_min, global_sum
+from decomposition.reduce import global_any, global_max, global_min, global_sum
 from parsph.budget import check_budget
 from parsph.errors import NumericalError, ParsphError
 from parsph.geometry import generate
@@ -55,6 +55,7 @@ class Context:
     indices: np.ndarray = None
     layout: str = "current"
     key: str = "x"
+    restarted: bool = False
     materials: list = field(default_factory=list)
     time: float = 0.0
     step: int = 0
@@ -232,12 +233,68 @@ def stats_columns(stages) -> list[str]:
     return cols
 
 
-def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None) -> dict:
-    """Run a validated scene; write ``out/particles.h5``, ``.xdmf`` and ``stats.csv``.
+class _StopRequest:
+    """SIGTERM / SIGUSR1 (what batch systems send before killing a job) set a flag; the
+    ranks agree on it after each step, write a checkpoint and stop together."""
 
-    Collective over ``comm`` (default: the world). Returns a summary (steps, time, wall
-    seconds, particle count).
+    SIGNALS = ("SIGTERM", "SIGUSR1")
+
+    def __init__(self):
+        self.signal = None
+        self.previous = {}
+
+    def __enter__(self):
+        import signal
+
+        for name in self.SIGNALS:
+            signum = getattr(signal, name)
+            try:
+                self.previous[signum] = signal.signal(signum, self._handler)
+            except ValueError:  # not the main thread (e.g. embedded use): no handler
+                pass
+        return self
+
+    def _handler(self, signum, frame):
+        self.signal = signum
+
+    def __exit__(self, *exc):
+        import signal
+
+        for signum, handler in self.previous.items():
+            signal.signal(signum, handler)
+
+
+def _initial_state(comm, scene, restart):
+    """Fields and scalars to start from: generated from the scene, or read from a checkpoint."""
+    from parsph import checkpoint
+
+    if restart is None:
+        fields = generate(comm, scene)
+        fields["X"] = fields["x"].copy()  # reference configuration (section 3)
+        return fields, None
+    ck = checkpoint.read(restart, comm, scene)
+    return ck.fields, ck
+
+
+def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
+        restart: str | None = None) -> dict:
+    """Run a validated scene; write ``out/particles.h5``, ``.xdmf``, ``stats.csv`` and
+    ``checkpoint.h5``.
+
+    Collective over ``comm`` (default: the world). ``restart`` continues from a checkpoint
+    (bit-for-bit the uninterrupted run at the same rank count). Returns a summary (steps,
+    time, wall seconds, particle count).
+
+    Raises
+    ------
+    Preempted
+        After SIGTERM/SIGUSR1: the step in progress finished and a checkpoint was written.
+    NumericalError
+        NaN/inf, a particle out of the domain, a failed solve: the frames and checkpoint
+        already written are kept.
     """
+    from parsph import checkpoint, faults
+    from parsph.errors import Preempted
     from parsph.io import FrameWriter, StatsWriter
     from parsph.log import Progress
 
@@ -249,37 +306,52 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None)
     dim, d = scene.domain.dim, scene.domain.particle_size
     h = smoothing_length(d)
     box = Box(tuple(scene.domain.lo), tuple(scene.domain.hi), tuple(scene.domain.periodic))
-    fields = generate(comm, scene)
-    fields["X"] = fields["x"].copy()  # reference configuration (section 3)
+    fields, ck = _initial_state(comm, scene, restart)
     particles = ParticleSet(dim, fields)
     for name in ("eps_p", "p", "porosity"):  # written to every frame (zeros if unused)
         particles.add_field(name)
     lay = layout(specs)
     ctx = Context(scene=scene, comm=comm, particles=particles, box=box, dim=dim, d=d, h=h,
                   radius=support_radius(h), layout=lay, key="X" if lay == "reference" else "x",
-                  materials=list(scene.materials.values()))
+                  materials=list(scene.materials.values()), restarted=ck is not None)
+    if ck is not None:
+        ctx.time, ctx.step = float(ck.meta["time"]), int(ck.meta["step"])
+        ctx.rcb = ck.rcb  # None at another rank count: re-partitioned below
     if any(s.name == "iisph" for s in specs):  # only then is petsc4py imported
         import solvers
 
         solvers.init(list(petsc_args))
     stages = [spec.load()(ctx) for spec in specs]
-    refresh(ctx, force_partition=True)
+    refresh(ctx, force_partition=ctx.rcb is None)
     for s in stages:
         if hasattr(s, "setup"):
             _timed(ctx, s.name, s.setup, ctx)
+        if ck is not None and hasattr(s, "restore"):
+            s.restore(ctx, ck.stage_states.get(s.name, {}))
     for s in stages:
         if hasattr(s, "after_refresh"):
             _timed(ctx, s.name, s.after_refresh, ctx)
     _check_state(ctx)
     n_total = int(global_sum(comm, particles.n_owned))
-    log.info("scene '%s': %d particles on %d rank(s), stages: %s", scene.name, n_total,
-             comm.size, ", ".join(s.name for s in specs))
+    log.info("scene '%s': %d particles on %d rank(s), stages: %s%s", scene.name, n_total,
+             comm.size, ", ".join(s.name for s in specs),
+             f"; restarted at t = {ctx.time:.6g} s, step {ctx.step}" if ck else "")
     h5 = os.path.join(out, "particles.h5")
     xdmf = os.path.join(out, "particles.xdmf")
+    ck_path = os.path.join(out, checkpoint.FILE_NAME)
     frame_fields = ("id", "x", "v", "phase", "eps_p", "p", "porosity", "rho") + tuple(
         f for s in stages for f in getattr(s, "output_fields", ()))
     attrs = {"scene": scene.name, "particle_size": d, "ranks": comm.size,
              "scene_source": scene.source}
+    end = scene.run.end_time
+    every = scene.output.every
+    ck_every = scene.output.checkpoint_every
+    if ck is None:
+        frame_index, last_frame_step, next_ck = 1, 0, ck_every
+    else:
+        frame_index = int(ck.meta["frame_index"])
+        last_frame_step = int(ck.meta["last_frame_step"])
+        next_ck = float(ck.meta["next_checkpoint"])
 
     def write_frame():
         t0 = time.perf_counter()
@@ -287,28 +359,38 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None)
         writer.write_frame(ctx.step, ctx.time, fields)  # rank 0 also rewrites the XDMF
         ctx.timers["output"] = ctx.timers.get("output", 0.0) + time.perf_counter() - t0
 
-    end = scene.run.end_time
-    every = scene.output.every
+    def write_checkpoint():
+        meta = {"scene": scene.name, "scene_physics": checkpoint.physics_hash(scene),
+                "dim": dim, "time": ctx.time, "step": ctx.step, "frame_index": frame_index,
+                "last_frame_step": last_frame_step, "next_checkpoint": next_ck}
+        states = {s.name: s.state() for s in stages if hasattr(s, "state")}
+        checkpoint.write(ck_path, comm, particles, ctx.rcb, meta, states,
+                         fault=faults.checkpoint_fault(ctx.step))
+
     show = scene.output.progress if progress is None else progress
     bar = Progress(end, enabled=show and comm.rank == 0)
-    with FrameWriter(h5, comm, dim, attrs=attrs, xdmf=xdmf) as writer, \
+    mode = "a" if ck is not None else "w"
+    if ck is not None and comm.rank == 0:
+        _truncate_stats(os.path.join(out, "stats.csv"), ctx.step)
+    with FrameWriter(h5, comm, dim, attrs=attrs, xdmf=xdmf, mode=mode) as writer, \
             StatsWriter(os.path.join(out, "stats.csv"), stats_columns(stages),
-                        enabled=comm.rank == 0) as stats:
-        write_frame()
-        next_frame = every
-        last_frame_step = 0
+                        enabled=comm.rank == 0, mode=mode) as stats, _StopRequest() as stop:
+        if ck is None:
+            write_frame()
         max_steps = scene.run.max_steps
         while scene.run.mode != "geometry" and ctx.time < end - 1e-12 * end:
             if max_steps and ctx.step >= max_steps:
                 break
             for name in ctx.timers:
                 ctx.timers[name] = 0.0
+            next_frame = frame_index * every
             dt = _time_step(ctx, stages, next_frame, end)
             for s in stages:
                 if hasattr(s, "step"):
                     _timed(ctx, s.name, s.step, ctx, dt)
             ctx.time += dt
             ctx.step += 1
+            faults.inject_nan(ctx)
             _check_state(ctx)
             refresh(ctx)
             for s in stages:
@@ -317,11 +399,22 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None)
             if ctx.time >= next_frame - 1e-9 * every:
                 write_frame()
                 last_frame_step = ctx.step
-                next_frame += every
+                frame_index += 1
             stats.write(_stats_row(ctx, dt, stages))
             bar.update(ctx.time, ctx.step)
+            if ck_every > 0 and ctx.time >= next_ck - 1e-9 * ck_every:
+                while next_ck <= ctx.time + 1e-9 * ck_every:
+                    next_ck += ck_every
+                write_checkpoint()
+            if global_any(comm, stop.signal is not None):
+                write_checkpoint()
+                bar.close()
+                raise Preempted(f"stopped by a signal at step {ctx.step}, t = {ctx.time:.6g} s; "
+                                f"continue with: parsph run {scene.source} --restart {ck_path}")
         if ctx.step != last_frame_step:
             write_frame()
+            last_frame_step = ctx.step
+        write_checkpoint()
     bar.close()
     memory = global_sum(comm, particles.nbytes() + ctx.indptr.nbytes + ctx.indices.nbytes)
     pairs = global_sum(comm, len(ctx.indices))
@@ -331,3 +424,17 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None)
     return {"steps": ctx.step, "time": ctx.time, "wall_s": wall, "particles": n_total, "out": out,
             "bytes_per_particle": memory / max(n_total, 1),
             "neighbours_per_particle": pairs / max(n_total, 1)}
+
+
+def _truncate_stats(path: str, step: int) -> None:
+    """Drop stats rows after ``step`` (left by a run killed after its last checkpoint)."""
+    if not os.path.exists(path):
+        return
+    with open(path) as fh:
+        lines = fh.readlines()
+    keep = lines[:1] + [ln for ln in lines[1:] if ln.split(",", 1)[0].strip().isdigit()
+                        and int(ln.split(",", 1)[0]) <= step]
+    tmp = path + ".tmp"
+    with open(tmp, "w") as fh:
+        fh.writelines(keep)
+    os.replace(tmp, path)

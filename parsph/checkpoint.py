@@ -1,0 +1,177 @@
+"""Checkpoints: everything the next step reads, in one HDF5 file, written atomically.
+
+Layout of ``checkpoint.h5``::
+
+    /           attrs: format, parsph_version, scene, scene_physics (hash), dim, ranks,
+                       time, step, next_frame, last_frame_step, next_checkpoint
+    /counts     (ranks,) int64      owned rows of each rank when written
+    /fields/F   (N, ...)            every per-particle field, rows in rank order
+    /rcb/...                        the partition (decomposition.partition.RCB arrays)
+    /stages/S/K                     scalar state of stage S (its ``state()`` dict)
+
+Notes
+-----
+Writes are collective with parallel HDF5 (each rank writes its rows independently at
+the offset of an exclusive prefix sum) into ``checkpoint.h5.tmp``; rank 0 then renames it
+over ``checkpoint.h5`` (atomic on POSIX), so an interrupted write never replaces the last
+good checkpoint. On restart at the same rank count each rank reads back exactly its own
+rows and the stored partition, so the continued run is bit-for-bit the uninterrupted
+one. At another rank count the rows are split evenly and re-partitioned (the result then
+agrees to round-off and solver tolerance).
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import os
+
+import numpy as np
+
+import parsph
+import h5py  # noqa: E402 - after parsph sets H5PY_ALWAYS_USE_MPI
+
+from decomposition.comm import collective
+from decomposition.numbering import global_offset
+from decomposition.partition import RCB
+from decomposition.reduce import barrier, broadcast
+from parsph.errors import ParsphError
+
+FORMAT = 1
+FILE_NAME = "checkpoint.h5"
+
+
+def physics_hash(scene) -> str:
+    """A hash of the scene keys a restart must not change (all but ``run``/``output``)."""
+    skip = {"run", "output", "source", "data"}
+    parts = [f"{f.name}={getattr(scene, f.name)!r}" for f in dataclasses.fields(scene)
+             if f.name not in skip]
+    return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:16]
+
+
+def _open(path, mode, comm):
+    kwargs = {"driver": "mpio", "comm": comm} if h5py.get_config().mpi else {}
+    return h5py.File(path, mode, **kwargs)
+
+
+def write(path: str, comm, particles, rcb, meta: dict, stage_states: dict, fault=None) -> None:
+    """Collective: write a checkpoint atomically (temporary file, then rename).
+
+    Parameters
+    ----------
+    particles : ParticleSet
+        Its owned rows of every field are written.
+    rcb : RCB
+        The current partition.
+    meta : dict
+        Scalars stored as root attributes (time, step, next_frame, …).
+    stage_states : dict of str to dict
+        ``{stage name: stage.state()}``; values numbers or arrays.
+    fault : callable, optional
+        Testing aid: called after the fields are written, before the file is closed.
+    """
+    tmp = path + ".tmp"
+    n = particles.n_owned
+    offset, total = global_offset(comm, n)
+    counts = np.array(comm.allgather(n), dtype=np.int64)
+    with collective(comm):
+        f = _open(tmp, "w", comm)
+    try:
+        f.attrs["format"] = FORMAT
+        f.attrs["parsph_version"] = parsph.__version__
+        f.attrs["ranks"] = comm.size
+        for key, value in meta.items():
+            f.attrs[key] = value
+        f.create_dataset("counts", data=counts)
+        grp = f.create_group("fields")
+        for name in sorted(particles.data):
+            arr = particles[name][:n]
+            dset = grp.create_dataset(name, shape=(total,) + arr.shape[1:], dtype=arr.dtype)
+            if n:
+                dset[offset:offset + n] = arr
+        rgrp = f.create_group("rcb")
+        for key, value in rcb.to_arrays().items():
+            rgrp.create_dataset(key, data=value)
+        sgrp = f.create_group("stages")
+        for stage, state in sorted(stage_states.items()):
+            g = sgrp.create_group(stage)
+            for key, value in sorted(state.items()):
+                g.create_dataset(key, data=np.asarray(value))
+        if fault is not None:
+            fault()
+    finally:
+        f.close()
+    barrier(comm)
+    if comm.rank == 0:
+        os.replace(tmp, path)
+    barrier(comm)
+
+
+class Checkpoint:
+    """What a restart reads: this rank's rows, the partition if reusable, the scalars."""
+
+    def __init__(self, fields, rcb, meta, stage_states):
+        self.fields = fields
+        self.rcb = rcb
+        self.meta = meta
+        self.stage_states = stage_states
+
+
+def _check_header(path: str, scene) -> dict:
+    """Rank 0: open the file serially and check it is a checkpoint of this scene."""
+    if not os.path.exists(path):
+        raise ParsphError(f"restart file '{path}' does not exist; give the checkpoint.h5 of an "
+                          f"earlier run of this scene")
+    try:
+        with h5py.File(path, "r") as f:
+            attrs = dict(f.attrs)
+            ok = {"counts", "fields", "rcb", "stages"} <= set(f.keys())
+            names = set(f["fields"].keys()) if "fields" in f else set()
+    except (OSError, KeyError):
+        raise ParsphError(f"restart file '{path}' is not a readable HDF5 checkpoint (truncated "
+                          f"or corrupt?); use an earlier checkpoint or start from the scene") from None
+    if attrs.get("format") != FORMAT or not ok:
+        raise ParsphError(f"restart file '{path}' is not a parsph checkpoint (format "
+                          f"{attrs.get('format')!r}); give a checkpoint.h5 written by parsph run")
+    if attrs.get("scene") != scene.name:
+        raise ParsphError(f"restart file '{path}' is from scene '{attrs.get('scene')}', not "
+                          f"'{scene.name}'; restart with the scene that wrote it")
+    if attrs.get("scene_physics") != physics_hash(scene):
+        raise ParsphError(f"restart file '{path}' was written with other scene settings: on "
+                          f"restart only run.* and output.* keys may change (domain, materials, "
+                          f"bodies, walls, gravity, solid and fluid must be as before)")
+    missing = {"id", "x", "v", "m", "phase", "material", "X"} - names
+    if missing:
+        raise ParsphError(f"restart file '{path}' lacks fields {sorted(missing)}; it is damaged")
+    return {k: (v.item() if hasattr(v, "item") else v) for k, v in attrs.items()}
+
+
+def read(path: str, comm, scene) -> Checkpoint:
+    """Collective: validate on rank 0 (one clear error everywhere), then read this rank's rows."""
+    payload = None
+    if comm.rank == 0:
+        try:
+            payload = ("ok", _check_header(path, scene))
+        except ParsphError as exc:
+            payload = ("error", str(exc))
+    status, meta = broadcast(comm, payload)
+    if status == "error":
+        raise ParsphError(meta)
+    with collective(comm):
+        f = _open(path, "r", comm)
+    try:
+        counts = f["counts"][...]
+        same = len(counts) == comm.size
+        if same:
+            start = int(counts[: comm.rank].sum())
+            stop = start + int(counts[comm.rank])
+        else:
+            total = int(counts.sum())
+            start = total * comm.rank // comm.size
+            stop = total * (comm.rank + 1) // comm.size
+        fields = {name: dset[start:stop] for name, dset in f["fields"].items()}
+        rcb = RCB.from_arrays({k: v[...] for k, v in f["rcb"].items()}) if same else None
+        states = {s: {k: (v[()] if v.shape == () else v[...]) for k, v in g.items()}
+                  for s, g in f["stages"].items()}
+    finally:
+        f.close()
+    return Checkpoint(fields, rcb, meta, states)

@@ -1,0 +1,81 @@
+"""Failures as a batch job meets them: pre-emption signals, NaNs, a checkpoint write that
+dies half-way. Each case runs ``parsph`` under ``mpirun -n 2`` (one-rank session only)."""
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import h5py
+import pytest
+
+from tests.scenes import MOVING_2D, write
+from tests.test_cli import _env, parsph
+
+pytestmark = pytest.mark.serial_only
+
+LONG = ["--set", "run.dt=2e-4", "--set", "run.end_time=0.4", "--set", "output.every=0.1",
+        "--set", "output.checkpoint_every=0.02"]
+
+
+@pytest.mark.parametrize("signame", ["SIGUSR1", "SIGTERM"])
+def test_preemption_writes_checkpoint_and_restart_finishes(tmp_path, signame):
+    scene = write(tmp_path, MOVING_2D)
+    out = tmp_path / "out"
+    cmd = ["mpirun", "-n", "2", sys.executable, "-m", "parsph", "run", scene, "--out", str(out),
+           "--no-progress"] + LONG
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=_env(), stdin=subprocess.DEVNULL)
+    deadline = time.time() + 120
+    while not (out / "checkpoint.h5").exists() and time.time() < deadline:
+        time.sleep(0.2)
+    # what a batch system does: signal every rank of the job
+    ranks = subprocess.run(["pgrep", "-f", f"parsph run {scene}"], capture_output=True,
+                           text=True).stdout.split()
+    for pid in ranks:
+        if int(pid) != proc.pid:
+            os.kill(int(pid), getattr(signal, signame))
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 4, err
+    assert "stopped by a signal" in err and "--restart" in err and "Traceback" not in err
+    with h5py.File(out / "checkpoint.h5", "r") as f:
+        stopped_at = f.attrs["time"]
+    assert 0 < stopped_at < 0.4
+    r = parsph("run", scene, "--restart", str(out / "checkpoint.h5"), *LONG, ranks=2)
+    assert r.returncode == 0, r.stderr
+    with h5py.File(out / "checkpoint.h5", "r") as f:
+        assert f.attrs["time"] == pytest.approx(0.4)
+
+
+def test_nan_stops_every_rank_with_one_message(tmp_path):
+    scene = write(tmp_path, MOVING_2D)
+    out = tmp_path / "out"
+    env_fault = dict(os.environ, PARSPH_FAULT="nan:150:1")
+    try:
+        os.environ.update(env_fault)
+        r = parsph("run", scene, "--out", str(out), *LONG, ranks=2)
+    finally:
+        os.environ.pop("PARSPH_FAULT")
+    assert r.returncode == 3, r.stderr
+    assert r.stderr.count("numerical failure") == 1
+    assert "non-finite v" in r.stderr and "step 150" in r.stderr and "rank 1" in r.stderr
+    with h5py.File(out / "particles.h5", "r") as f:
+        assert len(f["frames"]) >= 1  # frames written before the failure are kept
+    with h5py.File(out / "checkpoint.h5", "r") as f:
+        assert f.attrs["step"] == 100  # the last good checkpoint is kept
+
+
+def test_checkpoint_write_dying_halfway_keeps_the_previous_one(tmp_path):
+    scene = write(tmp_path, MOVING_2D)
+    out = tmp_path / "out"
+    # checkpoints every 0.02 s at dt = 2e-4: steps 100, 200, ...; the second write dies
+    try:
+        os.environ["PARSPH_FAULT"] = "checkpoint:200"
+        r = parsph("run", scene, "--out", str(out), *LONG, ranks=2)
+    finally:
+        os.environ.pop("PARSPH_FAULT")
+    assert r.returncode != 0
+    with h5py.File(out / "checkpoint.h5", "r") as f:
+        assert f.attrs["step"] == 100
+    r = parsph("run", scene, "--restart", str(out / "checkpoint.h5"), *LONG, ranks=2)
+    assert r.returncode == 0, r.stderr

@@ -1,0 +1,107 @@
+"""Runs that survive: exact restart, restart on another rank count, bad restart files."""
+import os
+import shutil
+
+import h5py
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from parsph.errors import ParsphError
+from parsph.io import read_frame
+from parsph.run import run
+from parsph.scene import load_scene
+from tests.scenes import MOVING_2D, write
+
+
+def _scene(comm, tmp, overrides=()):
+    path = comm.bcast(write(tmp, MOVING_2D) if comm.rank == 0 else None)
+    return load_scene(path, list(overrides))
+
+
+def _last(path):
+    f = read_frame(os.path.join(path, "particles.h5"), "last")
+    order = np.argsort(f["id"])
+    return {k: v[order] for k, v in f.items()}
+
+
+def _interrupted_and_whole(comm_a, comm_b, tmp, tag):
+    """Run to 0.2 s on comm_a, restart to 0.4 s on comm_b; and 0 → 0.4 s on comm_b."""
+    half = os.path.join(tmp, f"half-{tag}")
+    whole = os.path.join(tmp, f"whole-{tag}")
+    if comm_a is not None:
+        run(_scene(comm_a, tmp, ["run.end_time=0.2"]), half, comm=comm_a, progress=False)
+    if comm_b is not None:
+        comm_b.Barrier()
+        run(_scene(comm_b, tmp), half, comm=comm_b, progress=False,
+            restart=os.path.join(half, "checkpoint.h5"))
+        run(_scene(comm_b, tmp), whole, comm=comm_b, progress=False)
+    return half, whole
+
+
+def test_restart_is_bit_for_bit_at_equal_rank_count(comm, mpi_tmp_path):
+    half, whole = _interrupted_and_whole(comm, comm, mpi_tmp_path, "same")
+    if comm.rank == 0:
+        a, b = _last(half), _last(whole)
+        for key in ("id", "x", "v", "rho", "rank"):
+            assert np.array_equal(a[key], b[key]), key
+        steps_a = [s for s in h5py.File(os.path.join(half, "particles.h5"))["frames"]]
+        assert len(steps_a) == 3  # frames 0, 0.2 (before), 0.4 (after the restart)
+        with open(os.path.join(half, "stats.csv")) as fh, \
+                open(os.path.join(whole, "stats.csv")) as gh:
+            rows_a = [r.split(",")[:4] for r in fh.readlines()]
+            rows_b = [r.split(",")[:4] for r in gh.readlines()]
+        assert rows_a == rows_b  # same steps, times, dt and particle counts, no duplicates
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("direction", ["1to2", "2to1"])
+def test_restart_on_another_rank_count(comm, mpi_tmp_path, direction):
+    one = comm.Split(0 if comm.rank == 0 else MPI.UNDEFINED, comm.rank)
+    one = one if comm.rank == 0 else None  # COMM_NULL elsewhere
+    first, second = (one, comm) if direction == "1to2" else (comm, one)
+    half = os.path.join(mpi_tmp_path, "half")
+    if first is not None:
+        run(_scene(first, mpi_tmp_path, ["run.end_time=0.2"]), half, comm=first, progress=False)
+    comm.Barrier()
+    if second is not None:
+        run(_scene(second, mpi_tmp_path), half, comm=second, progress=False,
+            restart=os.path.join(half, "checkpoint.h5"))
+        run(_scene(second, mpi_tmp_path), os.path.join(mpi_tmp_path, "whole"), comm=second,
+            progress=False)
+    comm.Barrier()
+    if comm.rank == 0:
+        a, b = _last(half), _last(os.path.join(mpi_tmp_path, "whole"))
+        assert np.array_equal(a["id"], b["id"])
+        assert np.allclose(a["x"], b["x"], rtol=0, atol=1e-12)
+        assert np.allclose(a["rho"], b["rho"], rtol=1e-12)
+        one.Free()
+
+
+def test_bad_restart_files(comm, mpi_tmp_path):
+    scene = _scene(comm, mpi_tmp_path, ["run.end_time=0.2"])
+    out = os.path.join(mpi_tmp_path, "out")
+    run(scene, out, comm=comm, progress=False)
+    good = os.path.join(out, "checkpoint.h5")
+    broken = os.path.join(mpi_tmp_path, "broken.h5")
+    text = os.path.join(mpi_tmp_path, "text.h5")
+    if comm.rank == 0:
+        with open(good, "rb") as fh, open(broken, "wb") as gh:
+            gh.write(fh.read()[:2000])  # a truncated copy
+        with open(text, "w") as fh:
+            fh.write("not hdf5")
+    comm.Barrier()
+    cases = [
+        (os.path.join(mpi_tmp_path, "missing.h5"), scene, "does not exist"),
+        (broken, scene, "not a readable HDF5 checkpoint"),
+        (text, scene, "not a readable HDF5 checkpoint"),
+        (good, load_scene("hydrostatic", ["run.mode=geometry"]), "from scene 'moving'"),
+        (good, _scene(comm, mpi_tmp_path, ["domain.particle_size=0.04"]), "other scene settings"),
+    ]
+    for path, scn, words in cases:
+        with pytest.raises(ParsphError, match=words):
+            run(scn, os.path.join(mpi_tmp_path, "again"), comm=comm, progress=False, restart=path)
+    # the good checkpoint is untouched by the failed attempts
+    assert h5py.File(good, "r").attrs["step"] > 0
+    if comm.rank == 0:
+        shutil.rmtree(out)
