@@ -79,3 +79,39 @@ def test_checkpoint_write_dying_halfway_keeps_the_previous_one(tmp_path):
         assert f.attrs["step"] == 100
     r = parsph("run", scene, "--restart", str(out / "checkpoint.h5"), *LONG, ranks=2)
     assert r.returncode == 0, r.stderr
+
+
+def test_slurm_template_checkpoints_and_requeues(tmp_path):
+    """jobs/slurm.sbatch with stand-ins for srun (mpirun -n 2) and scontrol (a log)."""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    (bin_dir / "srun").write_text('#!/bin/bash\nexec mpirun -n 2 "$@"\n')
+    (bin_dir / "scontrol").write_text(f'#!/bin/bash\necho "$@" >> {tmp_path}/scontrol.log\n')
+    for name in ("srun", "scontrol"):
+        (bin_dir / name).chmod(0o755)
+    scene = write(tmp_path, MOVING_2D)
+    out = tmp_path / "out"
+    env = _env()
+    env.update(PATH=f"{bin_dir}:{os.path.join(root, '.venv', 'bin')}:{env['PATH']}",
+               SCENE=scene, OUT=str(out), VENV=os.path.join(root, ".venv"), SLURM_JOB_ID="123",
+               SET="run.dt=2e-4 run.end_time=0.4 output.every=0.1 output.checkpoint_every=0.02")
+    script = os.path.join(root, "jobs", "slurm.sbatch")
+    proc = subprocess.Popen(["bash", script], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True, stdin=subprocess.DEVNULL)
+    deadline = time.time() + 120
+    while not (out / "checkpoint.h5").exists() and time.time() < deadline:
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGUSR1)  # what --signal=B:USR1@300 does
+    log, _ = proc.communicate(timeout=120)
+    assert proc.returncode == 0, log
+    assert (tmp_path / "scontrol.log").read_text().split() == ["requeue", "123"], log
+    with h5py.File(out / "checkpoint.h5", "r") as f:
+        assert f.attrs["time"] < 0.4
+    # the re-queued job restarts from the checkpoint and finishes
+    again = subprocess.run(["bash", script], env=env, capture_output=True, text=True,
+                           timeout=300, stdin=subprocess.DEVNULL)
+    assert again.returncode == 0, again.stdout + again.stderr
+    assert "restarting from" in again.stdout
+    with h5py.File(out / "checkpoint.h5", "r") as f:
+        assert f.attrs["time"] == pytest.approx(0.4)
