@@ -68,3 +68,52 @@ def test_density_on_moving_set_one_vs_two_ranks(comm, mpi_tmp_path, text):
         assert set(np.unique(b["rank"])) == {0, 1}  # both ranks owned particles
         if scene.domain.dim == 2:  # the blocks overlap at the end: density rises there
             assert a["rho"].max() > 1.2 * np.median(a["rho"])
+
+
+@pytest.mark.mpi
+def test_rebalancing_follows_a_moving_body(comm, mpi_tmp_path):
+    """All particles drift into one half of the domain: the partition follows them."""
+    scene = _shared_scene(comm, mpi_tmp_path, MOVING_2D, "scene.toml")
+    scene = load_scene(scene.source, ["bodies.0.velocity=[0, 0]", "bodies.1.velocity=[0, 0]",
+                                      "walls.0.hi=[0.2, 0.0]", "bodies.1.vertices=[[0.1, 0.6], "
+                                      "[0.9, 0.6], [0.5, 1.0]]", "bodies.0.velocity=[3, 0]",
+                                      "bodies.1.velocity=[3, 0]", "run.end_time=0.3"])
+    out = os.path.join(mpi_tmp_path, "out")
+    run(scene, out, comm=comm, progress=False)
+    if comm.rank == 0:
+        with open(os.path.join(out, "stats.csv")) as fh:
+            rows = list(csv.DictReader(fh))
+        worst = max(int(r["n_owned_max"]) / max(int(r["n_owned_min"]), 1) for r in rows)
+        # without re-partitioning one rank would end up with (nearly) everything
+        assert worst <= scene.run.rebalance_tolerance * 1.3
+        assert int(rows[-1]["n_owned_min"]) > 0
+
+
+@pytest.mark.mpi
+def test_a_rank_without_particles(comm, mpi_tmp_path):
+    """One particle on two ranks: the empty rank takes part in every collective."""
+    text = MOVING_2D.replace("hi = [0.9, 0.5]", "hi = [0.15, 0.05]")
+    scene = _shared_scene(comm, mpi_tmp_path, text, "one.toml")
+    scene = load_scene(scene.source, ["walls.0.hi=[0.05, 0.0]", "walls.0.lo=[0.0, -0.05]",
+                                      "bodies.1.vertices=[[1.0, 0.0], [1.05, 0.0], [1.0, 0.05]]"])
+    summary = run(scene, os.path.join(mpi_tmp_path, "out"), comm=comm, progress=False)
+    assert summary["particles"] <= 3
+    assert summary["time"] == pytest.approx(scene.run.end_time)
+
+
+def test_only_the_stages_a_scene_needs_are_imported(tmp_path):
+    """A kinematic scene imports neither the solid, the fluid, solvers nor petsc4py."""
+    import subprocess
+    import sys
+
+    scene = write(tmp_path, MOVING_2D)
+    code = (f"import sys; from parsph.scene import load_scene; from parsph.run import run; "
+            f"run(load_scene({scene!r}, ['run.end_time=0.05', 'output.every=0.05']), "
+            f"{str(tmp_path / 'out')!r}, progress=False); "
+            f"print(sorted(m for m in sys.modules if m.split('.')[0] in "
+            f"('petsc4py', 'solvers') or m.startswith(('parsph.solid', 'parsph.fluid'))))")
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                       env={k: v for k, v in os.environ.items() if not k.startswith(("OMPI_",
+                            "PMIX_", "OPAL_", "PRTE_", "HYDRA_", "PMI_"))})
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.strip().splitlines()[-1] == "[]"
