@@ -82,3 +82,26 @@ def abort(comm, code: int) -> None:
     """Take every rank down (after an unexpected error on this one); no-op on one rank."""
     if comm.size > 1:
         comm.Abort(code)
+
+
+def on_root(comm, fn, *args):
+    """Collective: ``fn(*args)`` on rank 0 only; every rank gets its result or its error.
+
+    For work that must happen once (reading and checking an input file): a
+    :class:`~parsph.errors.ParsphError` raised on rank 0 is raised on every rank with
+    the same message, so one message is printed and no rank waits.
+    """
+    from parsph.errors import ParsphError
+
+    payload = None
+    if comm.rank == 0:
+        try:
+            payload = ("ok", fn(*args))
+        except ParsphError as exc:
+            payload = ("error", (type(exc).__name__, str(exc)))
+    status, value = comm.bcast(payload, root=0)
+    if status == "error":
+        import parsph.errors as errors
+
+        raise getattr(errors, value[0], ParsphError)(value[1])
+    return value

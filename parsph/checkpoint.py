@@ -30,10 +30,10 @@ import numpy as np
 import parsph
 import h5py  # noqa: E402 - after parsph sets H5PY_ALWAYS_USE_MPI
 
-from decomposition.comm import collective
+from decomposition.comm import collective, on_root
 from decomposition.numbering import global_offset
 from decomposition.partition import RCB
-from decomposition.reduce import barrier, broadcast
+from decomposition.reduce import barrier
 from parsph.errors import ParsphError
 
 FORMAT = 1
@@ -147,15 +147,7 @@ def _check_header(path: str, scene) -> dict:
 
 def read(path: str, comm, scene) -> Checkpoint:
     """Collective: validate on rank 0 (one clear error everywhere), then read this rank's rows."""
-    payload = None
-    if comm.rank == 0:
-        try:
-            payload = ("ok", _check_header(path, scene))
-        except ParsphError as exc:
-            payload = ("error", str(exc))
-    status, meta = broadcast(comm, payload)
-    if status == "error":
-        raise ParsphError(meta)
+    meta = on_root(comm, _check_header, path, scene)
     with collective(comm):
         f = _open(path, "r", comm)
     try:

@@ -85,19 +85,10 @@ def _is_number(tok: str) -> bool:
 
 def _load(comm, scene_name, overrides):
     """Load and validate the scene on rank 0; every rank gets the scene or the same error."""
-    from decomposition.reduce import broadcast
+    from decomposition.comm import on_root
     from parsph.scene import load_scene
 
-    payload = None
-    if comm.rank == 0:
-        try:
-            payload = ("ok", load_scene(scene_name, overrides))
-        except ParsphError as exc:
-            payload = ("error", str(exc))
-    status, value = broadcast(comm, payload)
-    if status == "error":
-        raise ParsphError(value)
-    return value
+    return on_root(comm, load_scene, scene_name, overrides)
 
 
 def cmd_run(comm, args, petsc) -> int:

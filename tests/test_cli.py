@@ -121,3 +121,16 @@ def test_numerical_failure_particle_leaves_domain(tmp_path):
     assert "left the domain" in r.stderr and "particle id" in r.stderr
     assert r.stderr.count("numerical failure") == 1
     assert (out / "particles.h5").stat().st_size > 0  # the frames written before are kept
+
+
+def test_bad_input_never_touches_earlier_output(tmp_path):
+    scene = write(tmp_path, MOVING_2D)
+    out = tmp_path / "out"
+    assert parsph("run", scene, "--out", str(out), ranks=2).returncode == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
+    for bad in (["--set", "run.end_time=-1"], ["--set", "bodies.0.material=x"], ["--bogus"],
+                ["--restart", str(tmp_path / "none.h5")]):
+        r = parsph("run", scene, "--out", str(out), *bad, ranks=2)
+        assert r.returncode == 2, r.stderr
+    after = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
+    assert after == before
