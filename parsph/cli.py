@@ -17,7 +17,7 @@ from parsph import __version__
 from parsph.errors import NumericalError, ParsphError, Preempted
 
 EXIT_OK, EXIT_BUG, EXIT_INPUT, EXIT_NUMERICAL, EXIT_PREEMPTED = 0, 1, 2, 3, 4
-VERBS = ("run", "check", "scenes", "info", "plot")
+VERBS = ("run", "check", "scenes", "info", "plot", "study")
 DEFAULT_SCENE = "hydrostatic"
 
 
@@ -32,7 +32,8 @@ def _parser() -> _Parser:
     p = _Parser(prog="parsph", description="Phase-change TLSPH-IISPH landslide simulation "
                 "on MPI and PETSc. PETSc options (-ppe_ksp_monitor, -log_view, ...) pass through.")
     p.add_argument("--version", action="version", version=f"parsph {__version__}")
-    sub = p.add_subparsers(dest="verb", metavar="{run,check,scenes,info,plot}", parser_class=_Parser)
+    sub = p.add_subparsers(dest="verb", metavar="{run,check,scenes,info,plot,study}",
+                           parser_class=_Parser)
     r = sub.add_parser("run", help="run a scene (default: the built-in default scene)")
     r.add_argument("scene", nargs="?", default=DEFAULT_SCENE,
                    help="built-in scene name or TOML file (default: %(default)s)")
@@ -54,7 +55,34 @@ def _parser() -> _Parser:
     pl.add_argument("--color-by", default="phase,speed,eps_p",
                     help="comma-separated: phase, speed, eps_p, p, rho, rank")
     pl.add_argument("--out", default=None, help="directory for the PNG files (default: DIR)")
+    st = sub.add_parser("study", help="error against wall time over a sweep of settings")
+    st.add_argument("scene", help="built-in scene name or TOML file with a known answer")
+    st.add_argument("--out", required=True, help="directory for study.csv, study.png, runs/")
+    st.add_argument("--vary", nargs="+", default=[], metavar="NAME=V1,V2",
+                    help="particle_size=..., cfl=..., ksp_rtol=... or any dotted scene key")
+    st.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     return p
+
+
+def cmd_study(comm, args, petsc) -> int:
+    from parsph.study import convergence_order, parse_vary, study
+
+    vary = parse_vary(args.vary)
+    if not vary:
+        raise ParsphError("parsph study: give at least one --vary NAME=V1,V2,... "
+                          "(e.g. --vary particle_size=0.04,0.02,0.01)")
+    rows = study(comm, args.scene, args.out, vary, args.overrides, petsc)
+    if comm.rank == 0:
+        print(f"{'particle_size':>14s} {'cfl':>8s} {'ksp_rtol':>9s} {'steps':>7s} "
+              f"{'wall_s':>9s} {'error':>10s}")
+        for r in rows:
+            print(f"{r['particle_size']:14.4g} {r['cfl']:8.3g} {r['ksp_rtol']:9.2g} "
+                  f"{r['steps']:7d} {r['wall_s']:9.3f} {r['error']:10.3e}")
+        order = convergence_order([r["particle_size"] for r in rows], [r["error"] for r in rows])
+        print(f"observed order of convergence in the particle size: {order:.2f}")
+        print(f"wrote {os.path.join(args.out, 'study.csv')} and "
+              f"{os.path.join(args.out, 'study.png')}")
+    return EXIT_OK
 
 
 def split_petsc_options(extra: list[str]) -> list[str]:
@@ -170,8 +198,8 @@ def main(argv=None) -> int:
         if args.verb is None:
             raise ParsphError(f"no command given; commands: {', '.join(VERBS)} "
                               f"(see `parsph --help`)")
-        petsc = split_petsc_options(extra) if args.verb == "run" else []
-        if extra and args.verb != "run":
+        petsc = split_petsc_options(extra) if args.verb in ("run", "study") else []
+        if extra and args.verb not in ("run", "study"):
             raise ParsphError(f"unexpected argument(s) {' '.join(extra)} for `parsph {args.verb}`")
         if args.verb == "run":
             return cmd_run(comm, args, petsc)
@@ -181,6 +209,8 @@ def main(argv=None) -> int:
             return cmd_scenes(comm)
         if args.verb == "info":
             return cmd_info(comm)
+        if args.verb == "study":
+            return cmd_study(comm, args, petsc)
         return cmd_plot(comm, args)
     except Preempted as exc:
         if comm.rank == 0:

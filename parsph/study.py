@@ -1,0 +1,152 @@
+"""``parsph study``: what accuracy costs in time.
+
+Runs one scene at every combination of the varied settings (same rank count for all),
+measures each run's error against the scene's reference (:mod:`parsph.references`) and
+its wall time, and writes ``DIR/study.csv`` and ``DIR/study.png`` (error against wall time
+on log axes, the Pareto front marked). Prints the observed order of convergence in the
+particle size.
+
+Varied settings are given as ``name=v1,v2,...``; the names ``particle_size``, ``cfl`` and
+``ksp_rtol`` are short for the scene keys in :data:`ALIASES`, any other name is taken as
+a dotted scene key.
+"""
+from __future__ import annotations
+
+import csv
+import itertools
+import math
+import os
+
+import numpy as np
+
+from decomposition.reduce import broadcast
+from parsph.errors import ParsphError
+
+#: Short names of the study axes -> the scene key they set, by what the scene runs:
+#: (stage or mode, key); the first entry whose stage/mode the scene has wins.
+ALIASES = {
+    "particle_size": (("*", "domain.particle_size"),),
+    "cfl": (("kinematic", "run.cfl"), ("iisph", "fluid.cfl"), ("tlsph", "solid.cfl")),
+    "ksp_rtol": (("iisph", "fluid.ppe_rtol"),),
+}
+COLUMNS = ["particle_size", "cfl", "ksp_rtol", "ranks", "steps", "wall_s", "error"]
+
+
+def parse_vary(items) -> dict:
+    """``["particle_size=0.02,0.01", ...]`` -> ``{"particle_size": [0.02, 0.01], ...}``."""
+    out = {}
+    for item in items or ():
+        if "=" not in item:
+            raise ParsphError(f"--vary {item!r}: expected name=v1,v2,... e.g. "
+                              f"--vary particle_size=0.02,0.01")
+        name, values = item.split("=", 1)
+        try:
+            vals = [float(v) for v in values.split(",") if v.strip()]
+        except ValueError:
+            raise ParsphError(f"--vary {item!r}: values must be numbers") from None
+        if not vals or any(not math.isfinite(v) or v <= 0 for v in vals):
+            raise ParsphError(f"--vary {item!r}: give one or more positive numbers")
+        out[name.strip()] = vals
+    return out
+
+
+def _key_for(scene, name: str) -> str:
+    """The dotted scene key a study axis sets for this scene."""
+    from parsph.pipeline import plan
+
+    runs = {s.name for s in plan(scene, strict=False)} | {scene.run.mode, "*"}
+    for what, key in ALIASES.get(name, (("*", name),)):
+        section, _, attr = key.partition(".")
+        if what in runs and hasattr(getattr(scene, section, None), attr):
+            return key
+    raise ParsphError(f"--vary {name}: scene '{scene.name}' has no setting '{name}' "
+                      f"(it runs {', '.join(sorted(runs - {'*'}))})")
+
+
+def _current(scene, key: str) -> float:
+    section, _, attr = key.partition(".")
+    return float(getattr(getattr(scene, section), attr))
+
+
+def pareto(wall: np.ndarray, error: np.ndarray) -> np.ndarray:
+    """Mask of the runs no other run beats in both wall time and error."""
+    keep = np.ones(len(wall), dtype=bool)
+    for i in range(len(wall)):
+        better = (wall <= wall[i]) & (error <= error[i]) & ((wall < wall[i]) | (error < error[i]))
+        keep[i] = not better.any()
+    return keep
+
+
+def convergence_order(sizes, errors) -> float:
+    """Least-squares slope of log(error) against log(particle size) (NaN if undefined)."""
+    d, e = np.asarray(sizes, float), np.asarray(errors, float)
+    ok = (e > 0) & np.isfinite(e)
+    if len(np.unique(d[ok])) < 2:
+        return float("nan")
+    return float(np.polyfit(np.log(d[ok]), np.log(e[ok]), 1)[0])
+
+
+def study(comm, scene_name: str, out: str, vary: dict, overrides=(), petsc_args=()) -> list:
+    """Collective: run the sweep, write study.csv and study.png; return the rows (rank 0)."""
+    from decomposition.comm import on_root
+    from parsph.references import error_of
+    from parsph.run import run
+    from parsph.scene import load_scene
+
+    from parsph.references import reference_of
+
+    base = on_root(comm, load_scene, scene_name, list(overrides))
+    reference_of(base)  # before any run: a scene without a known answer is refused
+    keys = {name: _key_for(base, name) for name in vary}
+    names = list(vary)
+    rows = []
+    for i, combo in enumerate(itertools.product(*(vary[n] for n in names))):
+        sets = [f"{keys[n]}={v!r}" for n, v in zip(names, combo)]
+        scene = on_root(comm, load_scene, scene_name, list(overrides) + sets)
+        run_dir = os.path.join(out, "runs", f"{i:03d}")
+        summary = run(scene, run_dir, comm=comm, petsc_args=petsc_args, progress=False)
+        err = on_root(comm, error_of, scene, run_dir)
+        row = {"particle_size": scene.domain.particle_size, "ranks": comm.size,
+               "steps": summary["steps"], "wall_s": summary["wall_s"], "error": err}
+        for name in ("cfl", "ksp_rtol"):
+            try:
+                row[name] = _current(scene, _key_for(scene, name))
+            except ParsphError:
+                row[name] = float("nan")
+        rows.append(row)
+    if comm.rank == 0:
+        _write(out, rows)
+    return broadcast(comm, rows)
+
+
+def _write(out: str, rows: list) -> None:
+    with open(os.path.join(out, "study.csv"), "w", newline="") as fh:
+        w = csv.DictWriter(fh, COLUMNS)
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: r[k] for k in COLUMNS})
+    plot(rows, os.path.join(out, "study.png"))
+
+
+def plot(rows: list, path: str) -> None:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    wall = np.array([r["wall_s"] for r in rows])
+    err = np.array([r["error"] for r in rows])
+    front = pareto(wall, err)
+    fig = Figure(figsize=(6, 4.5))
+    FigureCanvasAgg(fig)
+    ax = fig.add_subplot()
+    ax.loglog(wall, err, "o", color="0.6", label="runs")
+    order = np.argsort(wall[front])
+    ax.loglog(wall[front][order], err[front][order], "o-", color="C3", label="Pareto front")
+    for r, w, e in zip(rows, wall, err):
+        ax.annotate(f"d={r['particle_size']:.3g}", (w, e), fontsize=7,
+                    textcoords="offset points", xytext=(3, 3))
+    ax.set_xlabel("wall time (s)")
+    ax.set_ylabel("error (-)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)

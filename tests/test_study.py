@@ -1,0 +1,48 @@
+"""parsph study: the sweep, its table and plot, the Pareto front and the order."""
+import csv
+import os
+
+import numpy as np
+import pytest
+
+from parsph.errors import ParsphError
+from parsph.study import convergence_order, pareto, parse_vary, study
+from tests.scenes import MOVING_2D, write
+
+
+def test_pareto_and_order():
+    wall = np.array([1.0, 2.0, 3.0, 2.5])
+    err = np.array([0.1, 0.05, 0.01, 0.2])
+    assert pareto(wall, err).tolist() == [True, True, True, False]
+    d = np.array([0.04, 0.02, 0.01])
+    assert convergence_order(d, 3.0 * d ** 2) == pytest.approx(2.0)
+    assert np.isnan(convergence_order([0.1, 0.1], [1.0, 2.0]))
+
+
+def test_parse_vary_errors():
+    assert parse_vary(["particle_size=0.1,0.05"]) == {"particle_size": [0.1, 0.05]}
+    for bad in ("particle_size", "cfl=a,b", "cfl=-1", "cfl="):
+        with pytest.raises(ParsphError, match="--vary"):
+            parse_vary([bad])
+
+
+def test_study_writes_table_and_plot(comm, mpi_tmp_path):
+    path = comm.bcast(write(mpi_tmp_path, MOVING_2D) if comm.rank == 0 else None)
+    out = os.path.join(mpi_tmp_path, "study")
+    rows = study(comm, path, out, {"particle_size": [0.1, 0.05], "cfl": [0.5, 0.25]},
+                 overrides=["run.end_time=0.2", "output.every=0.1"])
+    assert len(rows) == 4
+    assert {r["ranks"] for r in rows} == {comm.size}
+    assert all(r["error"] < 1e-9 for r in rows)  # kinematic reference: exact motion
+    steps = {(r["particle_size"], r["cfl"]): r["steps"] for r in rows}
+    assert steps[(0.05, 0.25)] > steps[(0.05, 0.5)] > steps[(0.1, 0.5)]  # cfl really varied
+    if comm.rank == 0:
+        with open(os.path.join(out, "study.csv")) as fh:
+            table = list(csv.DictReader(fh))
+        assert list(table[0]) == ["particle_size", "cfl", "ksp_rtol", "ranks", "steps",
+                                  "wall_s", "error"]
+        assert os.path.getsize(os.path.join(out, "study.png")) > 1000
+    with pytest.raises(ParsphError, match="no setting 'ksp_rtol'"):
+        study(comm, path, out, {"ksp_rtol": [1e-6]})
+    with pytest.raises(ParsphError, match="no reference"):
+        study(comm, path, out, {"particle_size": [0.1]}, overrides=["run.mode=geometry"])
