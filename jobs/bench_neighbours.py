@@ -62,6 +62,7 @@ def main():
     ap.add_argument("--particles", type=float, default=1e5)
     ap.add_argument("--steps", type=int, default=10)
     ap.add_argument("--csv", default=None, help="append the row to this CSV file")
+    ap.add_argument("--breakdown", action="store_true", help="print seconds per step by stage")
     args = ap.parse_args()
     comm = world()
     dim = args.dim
@@ -90,6 +91,9 @@ def main():
                "particle_steps_per_s_per_core": f"{n / s_step / comm.size:.4g}",
                "neighbours_per_particle": f"{summary['neighbours_per_particle']:.1f}",
                "bytes_per_particle": f"{summary['bytes_per_particle']:.0f}"}
+        if args.breakdown:
+            for k in parts:
+                print(f"# {k}: {np.median(stats[k][1:]):.4g} s/step", file=sys.stderr)
         writer = csv.DictWriter(sys.stdout, COLUMNS)
         writer.writerow(row)
         if args.csv:

@@ -16,7 +16,7 @@ from parsph.pipeline import INFRASTRUCTURE, plan
 
 def check(comm, scene) -> str:
     """Collective: a report of stages, particle counts per rank and memory (on rank 0)."""
-    specs = plan(scene, strict=False)
+    specs = plan(scene)
     est = check_budget(comm, scene, specs)
     d = scene.domain.particle_size
     h = smoothing_length(d)
@@ -40,9 +40,7 @@ def check(comm, scene) -> str:
         f"frames every {scene.output.every:g} s",
         "stages of one step:",
     ]
-    rows = [(n, doc) for n, doc in INFRASTRUCTURE] + [
-        (s.name, s.doc + ("" if s.available else "  [NOT AVAILABLE in this version]"))
-        for s in specs]
+    rows = [(n, doc) for n, doc in INFRASTRUCTURE] + [(s.name, s.doc) for s in specs]
     lines += [f"  {name:12s} {doc}" for name, doc in rows]
     lines += [
         f"particles: {total} (solid {int(counts[0])}, fluid {int(counts[1])}, "
@@ -55,11 +53,3 @@ def check(comm, scene) -> str:
     ]
     return "\n".join(lines)
 
-
-def check_and_report(comm, scene) -> str:
-    """The report of :func:`check`, then the error :func:`plan` gives if the run cannot go."""
-    text = check(comm, scene)
-    if comm.rank == 0:
-        print(text, flush=True)
-    plan(scene)  # raises the SceneError of a stage this version lacks
-    return text

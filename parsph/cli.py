@@ -141,9 +141,11 @@ def cmd_run(comm, args, petsc) -> int:
 
 
 def cmd_check(comm, args) -> int:
-    from parsph.check import check_and_report
+    from parsph.check import check
 
-    check_and_report(comm, _load(comm, args.scene, args.overrides))
+    text = check(comm, _load(comm, args.scene, args.overrides))
+    if comm.rank == 0:
+        print(text)
     return EXIT_OK
 
 

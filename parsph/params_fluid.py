@@ -1,6 +1,9 @@
 """Scene table of the IISPH fluid: ``[fluid]`` numerics.
 
-A plain validated dataclass (no physics imported): owned by the fluid stage.
+A plain validated dataclass (no physics imported): owned by the fluid stage
+(:mod:`parsph.fluid.stage`). The paper (section 4) leaves the stabilisation ``alpha`` of
+eq. (32), the free-surface criterion and the linear-solver tolerances open; the defaults
+below are taken from the literature it cites and are discussed in ``docs/iisph.md``.
 """
 from __future__ import annotations
 
@@ -11,6 +14,46 @@ from parsph.schema import spec
 
 @dataclass(frozen=True, kw_only=True)
 class FluidNumerics:
-    """``[fluid]``: numerical parameters of the IISPH fluid (section 4)."""
+    """``[fluid]``: numerical parameters of the IISPH fluid (section 4).
+
+    Notes
+    -----
+    ``alpha`` is the stabilisation of the pressure Poisson equation (32) (Asai et al.
+    2012, who recommend a small value, 0 <= alpha <= 1; alpha = 0 is the plain
+    divergence-free projection, alpha = 1 the density-invariant one). The free surface
+    is detected with the summation density (33) against a fraction ``beta`` of the rest
+    density (Koshizuka & Oka 1996 use beta = 0.97 on the particle number density; with
+    the cubic spline at h = 1.2 d, 0.9 flags exactly the outermost particle layer of
+    a flat surface, see ``docs/iisph.md``).
+    """
 
     cfl: float = spec(0.1, doc="C_CFL^f of eq. (49): dt <= C d / v_max", gt=0.0, le=1.0)
+    alpha: float = spec(0.01, doc="stabilisation alpha of the PPE, eq. (32) (Asai et al. 2012), "
+                        "0 <= alpha <= 1", ge=0.0, le=1.0)
+    free_surface_beta: float = spec(0.9, doc="free surface: rho_i < beta rho_0 gets p = 0 "
+                                    "(Koshizuka & Oka 1996 criterion on the density (33))",
+                                    gt=0.0, lt=1.0)
+    free_surface_gamma: float = spec(0.25, doc="free surface also where h |sum_j V_j grad W_ij| > "
+                                     "gamma (incomplete support; 0.56 on a flat surface, 0.03 one "
+                                     "layer below)", gt=0.0)
+    velocity_floor: float = spec(1.0, doc="v_max of eq. (49) is at least this times "
+                                 "sqrt(|g| d) (a fluid at rest still gets a finite step)",
+                                 ge=0.0)
+    dt_max: float = spec(0.0, doc="upper bound of the fluid time step (s); 0 = none", ge=0.0)
+    pressure_gradient: str = spec("hybrid", doc="corrector gradient: hybrid (eq. (37) inside, "
+                                  "Bonet & Lok 1999 corrected difference on free-surface rows) | "
+                                  "symmetric (eq. (37) everywhere) | corrected (everywhere)",
+                                  choices=("hybrid", "symmetric", "corrected"))
+    viscous_term: str = spec("paper", doc="viscous operator: paper (eq. (34)) | morris (Morris et "
+                             "al. 1997; 1 % in shear on a lattice where eq. (34) is 20 % weak)",
+                             choices=("paper", "morris"))
+    clamp_negative_pressure: bool = spec(True, doc="set negative PPE pressures to 0 before the "
+                                         "corrector (Koshizuka & Oka 1996)")
+    ppe_rtol: float = spec(1e-8, doc="relative tolerance of the pressure solve (ppe_ksp_rtol)",
+                           gt=0.0, lt=1.0)
+    visc_rtol: float = spec(1e-8, doc="relative tolerance of the viscous predictor solve "
+                            "(visc_ksp_rtol)", gt=0.0, lt=1.0)
+    max_it: int = spec(500, doc="maximum Krylov iterations of either solve", gt=0)
+    smagorinsky: float = spec(0.2, doc="Smagorinsky constant C_s of eq. (41)", ge=0.0)
+    les_width: float = spec(0.1, doc="filter width Delta of eq. (41) in units of h "
+                            "(the paper: Delta = 0.1 h)", gt=0.0)

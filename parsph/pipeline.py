@@ -23,13 +23,13 @@ from dataclasses import dataclass
 from parsph.errors import SceneError
 
 
+
 @dataclass(frozen=True)
 class StageSpec:
     name: str
     module: str
     cls: str
     doc: str
-    available: bool = True
 
     def load(self):
         """Import the implementing module (only now) and return the stage class."""
@@ -42,9 +42,9 @@ STAGES = {
     "density": StageSpec("density", "parsph.diagnostics", "DensityStage",
                          "SPH density summation, eq. (33) (diagnostic field rho)"),
     "iisph": StageSpec("iisph", "parsph.fluid.stage", "IISPH",
-                       "implicit incompressible SPH fluid, eqs. (28)-(41)", available=False),
+                       "implicit incompressible SPH fluid, eqs. (28)-(41)"),
     "tlsph": StageSpec("tlsph", "parsph.solid.stage", "TLSPH",
-                       "total-Lagrangian elastoplastic solid, eqs. (2)-(27)", available=False),
+                       "total-Lagrangian elastoplastic solid, eqs. (2)-(27)"),
 }
 
 #: Infrastructure every run has, in step order (printed by `parsph check`).
@@ -55,30 +55,28 @@ INFRASTRUCTURE = (
 )
 
 
-def plan(scene, strict: bool = True) -> list[StageSpec]:
+def plan(scene) -> list[StageSpec]:
     """The physics stages of one step, in order, for this scene.
 
     Raises
     ------
     SceneError
-        If a material needs a stage this version does not have (unless ``strict`` is
-        False: then such stages are listed with ``available = False``).
+        For a scene with both solid and fluid materials: the solid-fluid coupling and
+        phase change (paper sections 3.3 and 5) are not in this version.
     """
     mode = scene.run.mode
     if mode in ("geometry", "kinematic"):
         names = ["kinematics", "density"] if mode == "kinematic" else ["density"]
         return [STAGES[n] for n in names]
     names = []
-    for mat_name, mat in scene.materials.items():
+    for mat in scene.materials.values():
         for stage in mat.stages:
-            spec = STAGES[stage]
-            if not spec.available and strict:
-                raise SceneError(
-                    f"{scene.source}: material '{mat_name}' (model '{mat.model}') needs the "
-                    f"'{stage}' stage ({spec.doc}), which this version of parsph does not have "
-                    f"yet; preview the scene with --set run.mode=geometry (or run.mode=kinematic)")
             if stage not in names:
                 names.append(stage)
+    if {"tlsph", "iisph"} <= set(names):
+        raise SceneError(f"{scene.source}: the scene has both solid (TLSPH) and fluid (IISPH) "
+                         f"materials; their coupling and the phase change are not in this "
+                         f"version of parsph yet: simulate one phase per scene")
     return [STAGES[n] for n in names]
 
 

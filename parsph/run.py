@@ -56,6 +56,7 @@ class Context:
     layout: str = "current"
     key: str = "x"
     restarted: bool = False
+    out: str = ""
     materials: list = field(default_factory=list)
     time: float = 0.0
     step: int = 0
@@ -73,8 +74,16 @@ class Context:
             p[name][p.n_owned:] = rows
 
     def body_acceleration(self, t: float) -> np.ndarray:
-        """g (and, once loading lands, the earthquake record) at time t (m/s^2)."""
-        return self.gravity
+        """g − s a_ground(t − t_0) (m/s²): gravity and the earthquake record, section 6.3.
+
+        The walls are fixed, so the record acts in the frame moving with the ground
+        (see :mod:`parsph.loading`); without a record this is g.
+        """
+        record = self.scene.data.get("record")
+        if record is None:
+            return self.gravity
+        load = self.scene.loading
+        return self.gravity - load.scale * record.at(t - load.start_time)
 
     @property
     def gravity(self) -> np.ndarray:
@@ -313,7 +322,7 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
     lay = layout(specs)
     ctx = Context(scene=scene, comm=comm, particles=particles, box=box, dim=dim, d=d, h=h,
                   radius=support_radius(h), layout=lay, key="X" if lay == "reference" else "x",
-                  materials=list(scene.materials.values()), restarted=ck is not None)
+                  materials=list(scene.materials.values()), restarted=ck is not None, out=out)
     if ck is not None:
         ctx.time, ctx.step = float(ck.meta["time"]), int(ck.meta["step"])
         ctx.rcb = ck.rcb  # None at another rank count: re-partitioned below
@@ -408,6 +417,7 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
                 write_checkpoint()
             if global_any(comm, stop.signal is not None):
                 write_checkpoint()
+                _finish(ctx, stages)
                 bar.close()
                 raise Preempted(f"stopped by a signal at step {ctx.step}, t = {ctx.time:.6g} s; "
                                 f"continue with: parsph run {scene.source} --restart {ck_path}")
@@ -415,6 +425,7 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
             write_frame()
             last_frame_step = ctx.step
         write_checkpoint()
+        _finish(ctx, stages)
     bar.close()
     memory = global_sum(comm, particles.nbytes() + ctx.indptr.nbytes + ctx.indices.nbytes)
     pairs = global_sum(comm, len(ctx.indices))
@@ -424,6 +435,13 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
     return {"steps": ctx.step, "time": ctx.time, "wall_s": wall, "particles": n_total, "out": out,
             "bytes_per_particle": memory / max(n_total, 1),
             "neighbours_per_particle": pairs / max(n_total, 1)}
+
+
+def _finish(ctx, stages) -> None:
+    """Stages' end-of-run output (e.g. triaxial.csv from stats.csv, flushed row by row)."""
+    for s in stages:
+        if hasattr(s, "finish"):
+            s.finish(ctx)
 
 
 def _truncate_stats(path: str, step: int) -> None:

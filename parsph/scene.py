@@ -19,7 +19,7 @@ from parsph import schema
 from parsph.errors import SceneError
 from parsph.materials import build_material
 from parsph.params_fluid import FluidNumerics
-from parsph.params_solid import SolidNumerics
+from parsph.params_solid import Constraint, SolidNumerics, check_solid
 from parsph.schema import spec
 
 SIDES = {2: ("left", "right", "bottom", "top"),
@@ -68,6 +68,14 @@ class Gravity:
 
 
 @dataclass(frozen=True)
+class Loading:
+    record: str = spec("", doc="earthquake record: CSV of time and ground accelerations "
+                       "(see docs/loading.md); empty = none")
+    scale: float = spec(1.0, doc="factor on the record's accelerations")
+    start_time: float = spec(0.0, doc="simulated time (s) at which the record starts", ge=0.0)
+
+
+@dataclass(frozen=True)
 class Body:
     name: str = spec(doc="body name")
     material: str = spec(doc="a key of [materials]")
@@ -107,10 +115,12 @@ class Scene:
     run: Run
     output: Output
     gravity: Gravity = field(default_factory=Gravity)
+    loading: Loading = field(default_factory=Loading)
     solid: SolidNumerics = field(default_factory=SolidNumerics)
     fluid: FluidNumerics = field(default_factory=FluidNumerics)
     bodies: tuple[Body, ...] = spec((), doc="[[bodies]] tables")
     walls: tuple[Wall, ...] = spec((), doc="[[walls]] tables")
+    constraints: tuple[Constraint, ...] = spec((), doc="[[constraints]] tables (TLSPH solid)")
     materials: dict = field(default_factory=dict, init=False, compare=False)
     source: str = field(default="", init=False, compare=False)
     data: dict = field(default_factory=dict, init=False, compare=False, repr=False)
@@ -225,6 +235,7 @@ def load_scene(scene: str, overrides=()) -> Scene:
     object.__setattr__(scn, "source", os.path.abspath(path))
     scn = _normalise(scn, source)
     _cross_check(scn, source)
+    check_solid(scn, source)
     object.__setattr__(scn, "data", _load_data(scn, source))
     return scn
 
@@ -329,8 +340,14 @@ def _load_data(scn: Scene, source: str) -> dict:
     """Read the data files a scene refers to (height maps), relative to the scene file."""
     from parsph.heightmap import read_ascii_grid
 
+    from parsph.loading import read_record
+
     data = {}
     base = os.path.dirname(scn.source)
+    rec = scn.loading.record
+    if rec:
+        path = rec if os.path.isabs(rec) else os.path.join(base, rec)
+        data["record"] = read_record(path, scn.domain.dim, "loading.record", source)
     for i, body in enumerate(scn.bodies):
         if body.shape == "heightmap":
             path = body.top if os.path.isabs(body.top) else os.path.join(base, body.top)

@@ -4,14 +4,15 @@ from __future__ import annotations
 from parsph import schema
 from parsph.materials import MODELS
 from parsph.params_fluid import FluidNumerics
-from parsph.params_solid import SolidNumerics
-from parsph.scene import Body, Domain, Gravity, Output, Run, SceneInfo, Wall
+from parsph.params_solid import Constraint, SolidNumerics
+from parsph.scene import Body, Domain, Gravity, Loading, Output, Run, SceneInfo, Wall
 
 SECTIONS = (("[scene]", SceneInfo, "scene."), ("[domain]", Domain, "domain."),
             ("[run]", Run, "run."), ("[output]", Output, "output."),
-            ("[gravity]", Gravity, "gravity."), ("[solid]", SolidNumerics, "solid."),
+            ("[gravity]", Gravity, "gravity."), ("[loading]", Loading, "loading."),
+            ("[solid]", SolidNumerics, "solid."),
             ("[fluid]", FluidNumerics, "fluid."), ("[[bodies]]", Body, "bodies.N."),
-            ("[[walls]]", Wall, "walls.N."))
+            ("[[walls]]", Wall, "walls.N."), ("[[constraints]]", Constraint, "constraints.N."))
 
 
 def _table(rows) -> list[str]:

@@ -54,7 +54,7 @@ def _key_for(scene, name: str) -> str:
     """The dotted scene key a study axis sets for this scene."""
     from parsph.pipeline import plan
 
-    runs = {s.name for s in plan(scene, strict=False)} | {scene.run.mode, "*"}
+    runs = {s.name for s in plan(scene)} | {scene.run.mode, "*"}
     for what, key in ALIASES.get(name, (("*", name),)):
         section, _, attr = key.partition(".")
         if what in runs and hasattr(getattr(scene, section, None), attr):

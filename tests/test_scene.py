@@ -119,3 +119,26 @@ def test_scene_key_reference_is_current():
     path = os.path.join(os.path.dirname(__file__), "..", "docs", "scenes.md")
     with open(path) as fh:
         assert fh.read() == markdown(), "regenerate: python -m parsph.scenedoc > docs/scenes.md"
+
+
+def test_scene_with_solid_and_fluid_is_refused_until_coupling(tmp_path):
+    from parsph.pipeline import plan
+    from parsph.scene import builtin_path
+
+    text = open(builtin_path("hydrostatic")).read() + """
+[materials.soil]
+model = "hencky"
+density = 2000.0
+poisson_ratio = 0.3
+young_modulus = 1.0e6
+
+[[bodies]]
+name = "block"
+material = "soil"
+shape = "box"
+lo = [0.4, 1.0]
+hi = [0.6, 1.1]
+"""
+    scene = load_scene(write(tmp_path, text))
+    with pytest.raises(SceneError, match="both solid .* and fluid"):
+        plan(scene)

@@ -1,0 +1,86 @@
+"""Benchmark: IISPH dam break, PPE iterations and time per step as the particle count grows.
+
+Runs the built-in ``dam_break`` scene at a given particle size for a fixed number of
+steps and prints one CSV row: particles, ranks, PPE and viscous KSP iterations (median
+over the steps), seconds per step split into fluid assembly (numba triplets + CSR),
+solves (KSPSolve), the stage's halo refreshes and the infrastructure (migrate, halo,
+neighbours), and particle-steps per second per core. Steps 1-2 (JIT warm-up, first
+matrices) are excluded.
+
+    .venv/bin/python jobs/bench_iisph.py --divisions 20 --steps 30
+    for n in 20 40 80; do mpirun -n 2 .venv/bin/python jobs/bench_iisph.py --divisions $n; done
+
+``--divisions`` is a / d (column width over particle size): 4x the divisions is 16x the
+particles. PETSc options after ``--`` pass through (e.g. ``-- -ppe_ksp_rtol 1e-10``).
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+import os
+import shutil
+import sys
+import tempfile
+
+import numpy as np
+
+from decomposition import world
+from decomposition.reduce import broadcast
+from parsph.io import read_stats
+from parsph.run import run
+from parsph.scene import load_scene
+
+COLUMNS = ["benchmark", "particles", "ranks", "steps", "ppe_iterations", "visc_iterations",
+           "s_per_step", "s_assembly", "s_solve", "s_fluid_halo", "s_infrastructure",
+           "particle_steps_per_s_per_core"]
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--divisions", type=int, default=20, help="a / d (dam_break: a = 0.146 m)")
+    ap.add_argument("--steps", type=int, default=30)
+    ap.add_argument("--csv", default=None, help="append the row to this CSV file")
+    args, petsc_args = ap.parse_known_args()
+    petsc_args = [a for a in petsc_args if a != "--"]
+    comm = world()
+    d = 0.146 / args.divisions
+    tmp = broadcast(comm, tempfile.mkdtemp(prefix="parsph-bench-") if comm.rank == 0 else None)
+    scene = load_scene("dam_break", [f"domain.particle_size={d:.6g}", f"run.max_steps={args.steps}",
+                                     "output.every=0.3", "output.progress=false"])
+    summary = run(scene, os.path.join(tmp, "out"), comm=comm, petsc_args=petsc_args,
+                  progress=False)
+    if comm.rank == 0:
+        stats = read_stats(os.path.join(tmp, "out", "stats.csv"))
+        skip = slice(2, None)
+
+        def col(name):
+            return np.asarray(stats[name], dtype=float)[skip]
+
+        infra = sum(col(f"wall_s_{k}") for k in ("migrate", "halo", "neighbours"))
+        per_step = infra + col("wall_s_iisph")
+        s_step = float(np.median(per_step))
+        n = summary["particles"]
+        row = {"benchmark": "iisph_dam_break", "particles": n, "ranks": comm.size,
+               "steps": len(per_step),
+               "ppe_iterations": f"{np.median(col('ppe_iterations')):.0f}",
+               "visc_iterations": f"{np.median(col('visc_iterations')):.0f}",
+               "s_per_step": f"{s_step:.4g}",
+               "s_assembly": f"{np.median(col('wall_s_fluid_assembly')):.4g}",
+               "s_solve": f"{np.median(col('wall_s_fluid_solve')):.4g}",
+               "s_fluid_halo": f"{np.median(col('wall_s_fluid_halo')):.4g}",
+               "s_infrastructure": f"{np.median(infra):.4g}",
+               "particle_steps_per_s_per_core": f"{n / s_step / comm.size:.4g}"}
+        writer = csv.DictWriter(sys.stdout, COLUMNS)
+        writer.writerow(row)
+        if args.csv:
+            new = not os.path.exists(args.csv)
+            with open(args.csv, "a", newline="") as fh:
+                w = csv.DictWriter(fh, COLUMNS)
+                if new:
+                    w.writeheader()
+                w.writerow(row)
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,404 @@
+r"""Numba kernels of the IISPH step: triplets of the two implicit systems and the explicit sums.
+
+Every kernel loops over the owned rows ``0 .. n_owned - 1`` of the CSR neighbour lists
+(owned rows first, halo rows after) and writes *global* indices: ``row[j]`` is the
+global PETSc point of row ``j`` (owned or halo). A boundary particle (``fluid[j] == 0``:
+a wall ghost particle, or a solid particle seen by the fluid) is an unknown like a fluid
+particle, with its own row (Adami et al. 2012 fixed wall ghost particles, treated as
+extra unknowns rather than substituted, so that the distributed assembly never needs a
+neighbour's neighbours).
+
+Viscous predictor, eqs. (30) and (34), for a fluid row :math:`i` (vector unknowns,
+block size ``dim``, component ``c`` of point ``P`` is scalar row ``P dim + c``):
+
+.. math::
+
+    \mathbf{v}^*_i - \Delta t \sum_j K_{ij} F_{ij}\, \mathbf{r}_{ij} \mathbf{r}_{ij}^T
+    (\mathbf{v}^*_i - \mathbf{v}^*_j) = \mathbf{v}^\beta_i + \Delta t\, \mathbf{g},
+    \qquad K_{ij} = m_j \frac{2 (D + 2) (\nu_i + \nu_j)}{(\rho_i + \rho_j)(r_{ij}^2 + \eta^2)},
+
+with :math:`\nabla W_{ij} = F_{ij} \mathbf{r}_{ij}` and :math:`\eta^2 = 0.01 h^2`. The
+paper's factor 8 of eq. (34) is :math:`2 (D + 2)` for :math:`D = 2` (Monaghan 2005); in 3D
+the same expression gives 10. No-slip boundary rows carry the ghost velocity
+:math:`\mathbf{v}_w = 2 \mathbf{v}_{wall} - \sum_f \mathbf{v}_f W_{wf} / \sum_f W_{wf}`
+(Adami et al. 2012, eqs. (22)-(23)); free-slip boundary neighbours are left out of the
+viscous sum.
+
+Pressure Poisson equation, eqs. (32), (35), (36), for a fluid row :math:`i` that is not
+on the free surface, multiplied by :math:`s_i = \rho_i d^2 / (2 \rho_{0i})` so that its
+coefficients are of order one (:func:`ppe_row_scale`):
+
+.. math::
+
+    \frac{2}{\rho_i} \sum_j m_j F_{ij} (p_i - p_j)
+    = \frac{\rho_0}{\Delta t} \langle \nabla\cdot\mathbf{v}^* \rangle_i
+      + \alpha \frac{\rho_0 - \rho_i}{\Delta t^2},
+
+free-surface rows :math:`p_i = 0`, and boundary rows with fluid neighbours the pressure
+extrapolation of Adami et al. (2012), eq. (27),
+
+.. math::
+
+    p_w - \sum_f \frac{W_{wf}}{\sum_f W_{wf}} p_f
+    = \sum_f \frac{W_{wf}}{\sum_f W_{wf}} \rho_f (\mathbf{g} - \mathbf{a}_w)\cdot(\mathbf{x}_w - \mathbf{x}_f).
+
+Boundary rows without a fluid neighbour are identity rows (value 0).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from parsph.kernel import fac_grad, normalisation, w
+
+__all__ = ["density_and_surface", "viscous_triplets", "ppe_triplets", "divergence",
+           "pressure_gradient", "pressure_gradient_corrected", "ppe_row_scale"]
+
+#: eta^2 / h^2 of the viscous term (avoids 1/r^2 blowing up for coincident particles).
+ETA2 = 0.01
+
+
+def ppe_row_scale(rho, rho0, d):
+    r"""Scale :math:`s_i = \rho_i d^2 / (2 \rho_{0i})` (m^2) of the fluid PPE rows.
+
+    The assembled fluid row is eq. (35) = source of eq. (32), both multiplied by
+    :math:`-s_i`, so that its coefficients :math:`-d^2 m_j F_{ij} / \rho_{0i}` are of
+    order one (like the wall and free-surface rows) and the diagonal is positive.
+    """
+    return rho * d * d / (2.0 * rho0)
+
+
+@njit(cache=True)
+def density_and_surface(x, m, fluid, rho0, indptr, indices, h, dim, beta, gamma, rho, free):
+    r"""Summation density (33) of the owned fluid rows and the free-surface flag.
+
+    ``rho[i]`` of boundary rows is left as given (their rest density). A fluid row is on
+    the free surface (``free[i] = 1``) when its support is visibly incomplete:
+    :math:`\rho_i < \beta \rho_{0i}` (Koshizuka & Oka 1996) **or**
+    (:math:`\rho_i < \rho_{0i}` and :math:`h |\sum_j V_j \nabla W_{ij}| > \gamma`) (the
+    kernel-gradient sum, zero for a full support; Marrone et al. 2010 use its normalised form for surface
+    detection; a compressed particle is never free, or two surface particles could
+    collapse onto each other at p = 0), with
+    :math:`V_j = m_j / \rho_{0j}`. Boundary particles count in both sums (they fill
+    the support beyond a wall), so a particle by a wall is not flagged, while one at a
+    wall corner above the water is, through the second test, even if the wall particles
+    above the water raise its density.
+    """
+    n = indptr.shape[0] - 1
+    w0 = normalisation(h, dim)
+    gs = np.zeros(dim)
+    for i in range(n):
+        if not fluid[i]:
+            free[i] = 0
+            continue
+        acc = m[i] * w0
+        gs[:] = 0.0
+        for p in range(indptr[i], indptr[i + 1]):
+            j = indices[p]
+            r2 = 0.0
+            for a in range(dim):
+                d = x[i, a] - x[j, a]
+                r2 += d * d
+            r = math.sqrt(r2)
+            acc += m[j] * w(r, h, dim)
+            f = m[j] / rho0[j] * fac_grad(r, h, dim)
+            for a in range(dim):
+                gs[a] += f * (x[i, a] - x[j, a])
+        rho[i] = acc
+        g2 = 0.0
+        for a in range(dim):
+            g2 += gs[a] * gs[a]
+        free[i] = 1 if (acc < beta * rho0[i] or
+                        (acc < rho0[i] and h * math.sqrt(g2) > gamma)) else 0
+
+
+@njit(cache=True)
+def viscous_triplets(x, v, m, rho, nu, fluid, slip, row, indptr, indices, h, dim, dt, g,
+                     morris):
+    """Triplets and right-hand side of the implicit viscous predictor (30)/(34).
+
+    Returns ``(rows, cols, vals, rhs)`` with global scalar indices (block size ``dim``)
+    and ``rhs`` of shape (n_owned, dim). See the module docstring for the rows. With
+    ``morris`` the operator is Morris et al. (1997) instead of eq. (34):
+    ``sum_j m_j (rho_i nu_i + rho_j nu_j) / (rho_i rho_j) F_ij r^2 / (r^2 + eta^2) v_ij``
+    (component-wise; accurate in shear on a lattice with h = 1.2 d, see docs/iisph.md).
+    """
+    n = indptr.shape[0] - 1
+    npairs = indptr[n]
+    cap = dim * dim * (npairs + n)
+    rows = np.empty(cap, dtype=np.int64)
+    cols = np.empty(cap, dtype=np.int64)
+    vals = np.empty(cap)
+    rhs = np.zeros((n, dim))
+    eta2 = ETA2 * h * h
+    diag = np.empty((dim, dim))
+    r = np.empty(dim)
+    k = 0
+    for i in range(n):
+        ri = row[i] * dim
+        diag[:, :] = 0.0
+        for a in range(dim):
+            diag[a, a] = 1.0
+        if fluid[i]:
+            for a in range(dim):
+                rhs[i, a] = v[i, a] + dt * g[a]
+            for p in range(indptr[i], indptr[i + 1]):
+                j = indices[p]
+                if not fluid[j] and slip[j]:
+                    continue
+                r2 = 0.0
+                for a in range(dim):
+                    r[a] = x[i, a] - x[j, a]
+                    r2 += r[a] * r[a]
+                nuj = nu[j] if fluid[j] else nu[i]
+                f = fac_grad(math.sqrt(r2), h, dim)
+                rj = row[j] * dim
+                if morris:
+                    c = dt * m[j] * (rho[i] * nu[i] + rho[j] * nuj) / (rho[i] * rho[j]) * f \
+                        * r2 / (r2 + eta2)
+                    for a in range(dim):
+                        diag[a, a] -= c
+                        rows[k] = ri + a
+                        cols[k] = rj + a
+                        vals[k] = c
+                        k += 1
+                    continue
+                kk = m[j] * 2.0 * (dim + 2) * (nu[i] + nuj) / ((rho[i] + rho[j]) * (r2 + eta2))
+                c = dt * kk * f  # <= 0
+                for a in range(dim):
+                    for b in range(dim):
+                        e = c * r[a] * r[b]
+                        diag[a, b] -= e
+                        rows[k] = ri + a
+                        cols[k] = rj + b
+                        vals[k] = e
+                        k += 1
+        elif not slip[i]:
+            # no-slip ghost velocity: v_w + sum_f w_wf v_f = 2 v_wall
+            wsum = 0.0
+            for p in range(indptr[i], indptr[i + 1]):
+                j = indices[p]
+                if fluid[j]:
+                    r2 = 0.0
+                    for a in range(dim):
+                        d = x[i, a] - x[j, a]
+                        r2 += d * d
+                    wsum += w(math.sqrt(r2), h, dim)
+            if wsum > 0.0:
+                for p in range(indptr[i], indptr[i + 1]):
+                    j = indices[p]
+                    if fluid[j]:
+                        r2 = 0.0
+                        for a in range(dim):
+                            d = x[i, a] - x[j, a]
+                            r2 += d * d
+                        wij = w(math.sqrt(r2), h, dim) / wsum
+                        rj = row[j] * dim
+                        for a in range(dim):
+                            rows[k] = ri + a
+                            cols[k] = rj + a
+                            vals[k] = wij
+                            k += 1
+                for a in range(dim):
+                    rhs[i, a] = 2.0 * v[i, a]
+            else:
+                for a in range(dim):
+                    rhs[i, a] = v[i, a]
+        else:
+            for a in range(dim):
+                rhs[i, a] = v[i, a]
+        for a in range(dim):
+            for b in range(dim):
+                if a == b or diag[a, b] != 0.0:
+                    rows[k] = ri + a
+                    cols[k] = ri + b
+                    vals[k] = diag[a, b]
+                    k += 1
+    return rows[:k], cols[:k], vals[:k], rhs
+
+
+@njit(cache=True)
+def ppe_triplets(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt, alpha,
+                 d, ga):
+    """Triplets and right-hand side of the stabilised PPE (32) with (35), (36) and walls.
+
+    ``vs`` is the predicted velocity v* of all rows (boundary rows: their own velocity
+    plus ``dt g``, see ``docs/iisph.md``); ``ga`` is ``g - a_w`` (m/s^2) of the walls.
+    Returns ``(rows, cols, vals, rhs)`` (global scalar rows, ``rhs`` of shape (n_owned,)).
+    """
+    n = indptr.shape[0] - 1
+    npairs = indptr[n]
+    cap = npairs + n
+    rows = np.empty(cap, dtype=np.int64)
+    cols = np.empty(cap, dtype=np.int64)
+    vals = np.empty(cap)
+    rhs = np.zeros(n)
+    k = 0
+    for i in range(n):
+        ri = row[i]
+        if fluid[i] and not free[i]:
+            s = rho[i] * d * d / (2.0 * rho0[i])
+            div = 0.0
+            diag = 0.0
+            for p in range(indptr[i], indptr[i + 1]):
+                j = indices[p]
+                r2 = 0.0
+                dvr = 0.0
+                for a in range(dim):
+                    e = x[i, a] - x[j, a]
+                    r2 += e * e
+                    dvr += (vs[j, a] - vs[i, a]) * e
+                f = fac_grad(math.sqrt(r2), h, dim)
+                div += m[j] * dvr * f
+                c = -s * 2.0 / rho[i] * m[j] * f  # >= 0
+                diag += c
+                rows[k] = ri
+                cols[k] = row[j]
+                vals[k] = -c
+                k += 1
+            div /= rho[i]
+            # density-error term of eq. (32) for compression only: under-density near
+            # the free surface is kernel truncation, not expansion (docs/iisph.md)
+            source = rho0[i] * div / dt + alpha * min(rho0[i] - rho[i], 0.0) / (dt * dt)
+            # eq. (35) as sum a_ij (p_i - p_j) with a_ij = -(2/rho_i) m_j F_ij = -source
+            rhs[i] = -s * source
+            rows[k] = ri
+            cols[k] = ri
+            vals[k] = diag
+            k += 1
+        elif fluid[i]:
+            rows[k] = ri
+            cols[k] = ri
+            vals[k] = 1.0
+            k += 1
+        else:
+            rows[k] = ri
+            cols[k] = ri
+            vals[k] = 1.0
+            k += 1
+            wsum = 0.0
+            for p in range(indptr[i], indptr[i + 1]):
+                j = indices[p]
+                if fluid[j]:
+                    r2 = 0.0
+                    for a in range(dim):
+                        e = x[i, a] - x[j, a]
+                        r2 += e * e
+                    wsum += w(math.sqrt(r2), h, dim)
+            if wsum > 0.0:
+                acc = 0.0
+                for p in range(indptr[i], indptr[i + 1]):
+                    j = indices[p]
+                    if fluid[j]:
+                        r2 = 0.0
+                        gr = 0.0
+                        for a in range(dim):
+                            e = x[i, a] - x[j, a]
+                            r2 += e * e
+                            gr += ga[a] * e
+                        wij = w(math.sqrt(r2), h, dim) / wsum
+                        rows[k] = ri
+                        cols[k] = row[j]
+                        vals[k] = -wij
+                        k += 1
+                        acc += wij * rho[j] * gr
+                rhs[i] = acc
+    return rows[:k], cols[:k], vals[:k], rhs
+
+
+@njit(cache=True)
+def divergence(x, vs, m, rho, fluid, indptr, indices, h, dim):
+    """Velocity divergence (36) of the owned fluid rows (1/s); 0 elsewhere."""
+    n = indptr.shape[0] - 1
+    out = np.zeros(n)
+    for i in range(n):
+        if not fluid[i]:
+            continue
+        acc = 0.0
+        for p in range(indptr[i], indptr[i + 1]):
+            j = indices[p]
+            r2 = 0.0
+            dvr = 0.0
+            for a in range(dim):
+                e = x[i, a] - x[j, a]
+                r2 += e * e
+                dvr += (vs[j, a] - vs[i, a]) * e
+            acc += m[j] * dvr * fac_grad(math.sqrt(r2), h, dim)
+        out[i] = acc / rho[i]
+    return out
+
+
+@njit(cache=True)
+def pressure_gradient(x, p, m, rho, fluid, indptr, indices, h, dim):
+    r"""Symmetric pressure gradient (37) of the owned fluid rows (Pa/m); 0 elsewhere.
+
+    :math:`\langle\nabla p\rangle_i = \rho_i \sum_j m_j (p_i/\rho_i^2 + p_j/\rho_j^2)
+    \nabla W_{ij}`, over fluid and boundary neighbours.
+    """
+    n = indptr.shape[0] - 1
+    out = np.zeros((n, dim))
+    for i in range(n):
+        if not fluid[i]:
+            continue
+        pi = p[i] / (rho[i] * rho[i])
+        for q in range(indptr[i], indptr[i + 1]):
+            j = indices[q]
+            r2 = 0.0
+            for a in range(dim):
+                e = x[i, a] - x[j, a]
+                r2 += e * e
+            c = rho[i] * m[j] * (pi + p[j] / (rho[j] * rho[j])) * fac_grad(math.sqrt(r2), h, dim)
+            for a in range(dim):
+                out[i, a] += c * (x[i, a] - x[j, a])
+    return out
+
+
+@njit(cache=True)
+def pressure_gradient_corrected(x, p, m, rho, fluid, indptr, indices, h, dim):
+    r"""Corrected pressure gradient of the owned fluid rows (Pa/m); 0 elsewhere.
+
+    :math:`\langle\nabla p\rangle_i = \mathbf{L}_i \sum_j V_j (p_j - p_i) \nabla W_{ij}`,
+    :math:`\mathbf{L}_i = \big(\sum_j V_j \nabla W_{ij} \otimes (\mathbf{x}_j - \mathbf{x}_i)
+    \big)^{-1}`, :math:`V_j = m_j / \rho_j` (Bonet & Lok 1999, cited in section 2): exact
+    for a linear pressure even where the support is truncated (free surface), so the
+    outermost layer, at p = 0, feels the full hydrostatic gradient. Where the matrix is
+    near singular (fewer than ``dim`` independent neighbours) the uncorrected sum is used.
+    """
+    n = indptr.shape[0] - 1
+    out = np.zeros((n, dim))
+    M = np.zeros((dim, dim))
+    s = np.zeros(dim)
+    for i in range(n):
+        if not fluid[i]:
+            continue
+        M[:, :] = 0.0
+        s[:] = 0.0
+        for q in range(indptr[i], indptr[i + 1]):
+            j = indices[q]
+            r2 = 0.0
+            for a in range(dim):
+                e = x[i, a] - x[j, a]
+                r2 += e * e
+            vf = m[j] / rho[j] * fac_grad(math.sqrt(r2), h, dim)
+            for a in range(dim):
+                ga = vf * (x[i, a] - x[j, a])
+                s[a] += (p[j] - p[i]) * ga
+                for b in range(dim):
+                    M[a, b] += ga * (x[j, b] - x[i, b])
+        tr = 0.0
+        for a in range(dim):
+            tr += M[a, a]
+        det = np.linalg.det(M)
+        if tr > 0.0 and det > 1e-3 * (tr / dim) ** dim:
+            L = np.linalg.inv(M)
+            for a in range(dim):
+                acc = 0.0
+                for b in range(dim):
+                    acc += L[a, b] * s[b]
+                out[i, a] = acc
+        else:
+            for a in range(dim):
+                out[i, a] = s[a]
+    return out

@@ -1,0 +1,272 @@
+r"""The IISPH stage: projection method of the paper, eqs. (30)-(41), on PETSc.
+
+One step from :math:`t^\beta` to :math:`t^{\beta+1} = t^\beta + \Delta t` (current layout:
+neighbour lists within 2h of the current positions, owned rows first, halo after):
+
+1. global PETSc point of every owned row (``offset + local``), sent to the halo rows;
+2. summation density (33) and free-surface flag (:math:`\rho_i < \beta \rho_0`);
+3. strain rate (39), Bingham viscosity (40) (+ eddy viscosity (41) if asked);
+4. implicit viscous predictor (30)/(34) for :math:`\mathbf{v}^*` (``visc_`` system,
+   block size ``dim``, GMRES + BoomerAMG), wall ghost velocities as extra unknowns;
+5. stabilised PPE (32)/(35)/(36) (``ppe_`` system, GMRES + BoomerAMG), free surface
+   :math:`p = 0`, wall pressure extrapolated from the fluid (Adami et al. 2012) as
+   extra unknowns;
+6. corrector (31) with the gradient (37); positions :math:`\mathbf{x} \mathrel{+}= \Delta t
+   \mathbf{v}^{\beta+1}` (symplectic Euler).
+
+The time step is eq. (49) with :math:`C^f_{CFL}` = ``fluid.cfl`` and no viscous limit.
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from decomposition.numbering import global_offset
+from decomposition.reduce import global_any, global_max, global_min, global_sum
+from parsph.fluid import assembly, rheology
+from parsph.fluid.walls import wall_slip
+from parsph.materials import PHASE_FLUID
+
+STATS = ("visc_iterations", "visc_residual", "ppe_iterations", "ppe_residual",
+         "n_free_surface", "max_divergence", "wall_s_fluid_assembly", "wall_s_fluid_solve",
+         "wall_s_fluid_halo")
+
+
+def lattice_density_ratio(h_over_d: float, dim: int) -> float:
+    """Summation density (33) of an interior particle of a regular lattice over m / d^dim.
+
+    The reference density of the stabilisation term of eq. (32) and of the free-surface
+    test is rho_0 times this ratio (0.99976 in 2D, 1.00081 in 3D for h = 1.2 d), the
+    discrete rest state, as the reference particle number density n_0 of MPS
+    (Koshizuka & Oka 1996); otherwise a fluid initially at rest on the lattice would be
+    driven by the lattice's own summation error.
+    """
+    from parsph.kernel import w_array
+
+    reach = int(np.ceil(2.0 * h_over_d))
+    k = np.arange(-reach, reach + 1)
+    grid = np.stack(np.meshgrid(*([k] * dim)), axis=-1).reshape(-1, dim)
+    return float(w_array(np.linalg.norm(grid, axis=1), h_over_d, dim).sum())
+
+
+class IISPH:
+    """Implicit incompressible SPH fluid (Newtonian or Bingham), paper section 4.
+
+    Per-particle fields it adds: ``rho`` (summation density, eq. 33), ``rho0`` (rest
+    density), ``nu`` (viscosity, eqs. 40-41), ``v_star`` (predictor velocity, eq. 30),
+    ``v_ghost`` (no-slip ghost velocity of wall rows, Adami et al. 2012),
+    ``free_surface`` (uint8), ``wall_slip`` (uint8, 1 = free-slip wall), ``fluid_row``
+    (int64: global PETSc point of the row).
+
+    Notes
+    -----
+    Parallel: each rank assembles the rows of its owned particles (fluid and walls) with
+    global column indices taken from ``fluid_row`` of owned and halo rows, which is
+    refreshed with one halo exchange per step; fields a kernel reads on halo rows (``rho``,
+    ``nu``, ``v_star``, ``p``) are refreshed after they change. The two
+    :class:`solvers.LinearSystem` objects are kept while no rank's owned count changes
+    (then their matrices are reused when the sparsity pattern is unchanged) and rebuilt
+    on every rank otherwise.
+    """
+
+    name = "iisph"
+    output_fields = ("nu", "free_surface")
+    stats_columns = STATS
+
+    def __init__(self, ctx):
+        p = ctx.particles
+        dim = ctx.dim
+        self.num = ctx.scene.fluid
+        p.add_field("rho")
+        p.add_field("rho0")
+        p.add_field("nu")
+        p.add_field("v_star", (dim,))
+        p.add_field("v_ghost", (dim,))
+        p.add_field("free_surface", dtype=np.uint8)
+        p.add_field("wall_slip", dtype=np.uint8)
+        p.add_field("fluid_row", dtype=np.int64)
+        self.table = rheology.material_table(ctx.materials)
+        n = p.n_owned
+        fluid = p["phase"][:n] == PHASE_FLUID
+        mat = np.maximum(p["material"][:n], 0)
+        rest = np.where(fluid, self.table["rho0"][mat] if len(mat) else 0.0,
+                        p["m"][:n] / ctx.d ** dim)
+        rest = rest * lattice_density_ratio(ctx.h / ctx.d, dim)
+        p["rho0"][:n] = rest
+        p["rho"][:n] = rest
+        p["wall_slip"][:n] = wall_slip(ctx.scene, p["X"][:n], ~fluid)
+        self.les = self.num.smagorinsky * self.num.les_width * ctx.h
+        self._ppe = self._visc = None
+        self._n_rows = -1
+        self._dt_cfl = 0.0
+        self._stats = {k: 0.0 for k in STATS}
+
+    # -- systems ------------------------------------------------------------------
+
+    def _systems(self, ctx):
+        """The two linear systems for this step's owned count (collective)."""
+        n = ctx.n_owned
+        if global_any(ctx.comm, n != self._n_rows) or self._ppe is None:
+            from solvers import LinearSystem
+
+            self.destroy()
+            tol = dict(max_it=self.num.max_it)
+            self._ppe = LinearSystem(ctx.comm, "ppe_", n, ksp_type="gmres",
+                                     rtol=self.num.ppe_rtol, **tol)
+            self._visc = LinearSystem(ctx.comm, "visc_", n, block_size=ctx.dim,
+                                      ksp_type="gmres", rtol=self.num.visc_rtol, **tol)
+            self._n_rows = n
+        return self._ppe, self._visc
+
+    def destroy(self) -> None:
+        """Free the PETSc objects (collective)."""
+        for system in (self._ppe, self._visc):
+            if system is not None:
+                system.destroy()
+        self._ppe = self._visc = None
+
+    # -- protocol -----------------------------------------------------------------
+
+    def max_dt(self, ctx) -> float:
+        """Eq. (49): ``cfl d / v_max`` over the fluid, with a floor on v_max (see FluidNumerics)."""
+        p = ctx.particles
+        n = ctx.n_owned
+        fluid = p["phase"][:n] == PHASE_FLUID
+        v = p["v"][:n][fluid]
+        vmax = float(np.sqrt((v * v).sum(axis=1).max())) if len(v) else 0.0
+        vmax = global_max(ctx.comm, vmax)
+        g = float(np.linalg.norm(ctx.body_acceleration(ctx.time)))
+        vmax = max(vmax, self.num.velocity_floor * math.sqrt(g * ctx.d))
+        dt = self.num.cfl * ctx.d / vmax if vmax > 0 else math.inf
+        if self.num.dt_max > 0:
+            dt = min(dt, self.num.dt_max)
+        self._dt_cfl = dt if math.isfinite(dt) else 0.0
+        return dt
+
+    @staticmethod
+    def _pin_if_confined(ctx, fluid, free) -> None:
+        """Collective: with no free surface anywhere (a closed or periodic box) the PPE
+        fixes the pressure only up to a constant; the fluid particle of smallest id then
+        gets p = 0 (a Dirichlet row) so that the matrix is not singular."""
+        if global_sum(ctx.comm, int(free[fluid.astype(bool)].sum())) > 0:
+            return
+        ids = ctx.particles["id"][: ctx.n_owned]
+        mine = ids[fluid.astype(bool)]
+        first = global_min(ctx.comm, int(mine.min()) if len(mine) else np.iinfo(np.int64).max)
+        free[(ids == first) & fluid.astype(bool)] = 1
+
+    def _halo(self, ctx, names):
+        t0 = time.perf_counter()
+        ctx.update_halo(names)
+        self._t_halo += time.perf_counter() - t0
+
+    def step(self, ctx, dt) -> None:
+        """Advance the owned fluid particles from t to t + dt (eqs. (30)-(37))."""
+        p = ctx.particles
+        n, dim, h, d = ctx.n_owned, ctx.dim, ctx.h, ctx.d
+        self._t_halo = 0.0
+        ppe, visc = self._systems(ctx)
+        offset, _ = global_offset(ctx.comm, n)
+        p["fluid_row"][:n] = offset + np.arange(n, dtype=np.int64)
+        self._halo(ctx, ["fluid_row"])
+        t0 = time.perf_counter()
+        x, m, row = p["x"], p["m"], p["fluid_row"]
+        indptr, indices = ctx.indptr, ctx.indices
+        fluid = (p["phase"] == PHASE_FLUID).astype(np.uint8)
+        slip = p["wall_slip"]
+        rho, rho0 = p["rho"], p["rho0"]
+        free = p["free_surface"]
+        assembly.density_and_surface(x, m, fluid, rho0, indptr, indices, h, dim,
+                                     self.num.free_surface_beta, self.num.free_surface_gamma,
+                                     rho, free)
+        self._pin_if_confined(ctx, fluid[:n], free[:n])
+        t_asm = time.perf_counter() - t0
+        self._halo(ctx, ["rho"])
+
+        t0 = time.perf_counter()
+        # wall rows enter the strain rate with their no-slip ghost velocity of the last
+        # viscous solve (Adami et al. 2012), fluid rows with their velocity
+        vel = np.where(fluid[:, None].astype(bool), p["v"], p["v_ghost"])
+        gamma = rheology.strain_rate(x, vel, m, rho, fluid, slip, indptr, indices, h, dim)
+        p["nu"][:n] = rheology.viscosity(gamma, p["p"][:n], fluid[:n], p["material"][:n],
+                                         self.table, self.les)
+        t_asm += time.perf_counter() - t0
+        self._halo(ctx, ["nu"])
+
+        g = np.asarray(ctx.body_acceleration(ctx.time), dtype=np.float64)
+        t0 = time.perf_counter()
+        rows, cols, vals, rhs = assembly.viscous_triplets(
+            x, p["v"], m, rho, p["nu"], fluid, slip, row, indptr, indices, h, dim, dt, g,
+            self.num.viscous_term == "morris")
+        visc.assemble(rows, cols, vals)
+        t_asm += time.perf_counter() - t0
+        vstar, info_v = visc.solve(rhs, x0=p["v"][:n])
+        own_fluid = fluid[:n].astype(bool)
+        vs = p["v_star"]
+        vs[:n] = p["v"][:n] + dt * g  # boundary rows: wall velocity + dt g (docs/iisph.md)
+        vs[:n][own_fluid] = vstar[own_fluid]
+        p["v_ghost"][:n][~own_fluid] = vstar[~own_fluid]
+        self._halo(ctx, ["v_star"])
+
+        t0 = time.perf_counter()
+        ga = g.copy()  # fixed walls: a_w = 0
+        # a step cut short to land on a frame time would amplify the density term of
+        # eq. (32) by (dt_cfl / dt)^2: alpha is rescaled so the correction is per CFL step
+        alpha = self.num.alpha * min(1.0, (dt / self._dt_cfl) ** 2) if self._dt_cfl > 0 \
+            else self.num.alpha
+        rows, cols, vals, rhs = assembly.ppe_triplets(
+            x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt,
+            alpha, d, ga)
+        ppe.assemble(rows, cols, vals)
+        t_asm += time.perf_counter() - t0
+        pres, info_p = ppe.solve(rhs, x0=p["p"][:n])
+        if self.num.clamp_negative_pressure:  # MPS practice (Koshizuka & Oka 1996)
+            pres = np.maximum(pres, 0.0)
+        p["p"][:n] = pres
+        self._halo(ctx, ["p"])
+
+        t0 = time.perf_counter()
+        mode = self.num.pressure_gradient
+        if mode == "corrected":
+            grad = assembly.pressure_gradient_corrected(x, p["p"], m, rho, fluid, indptr,
+                                                        indices, h, dim)
+        else:
+            grad = assembly.pressure_gradient(x, p["p"], m, rho, fluid, indptr, indices, h, dim)
+            if mode == "hybrid":  # surface rows (p = 0, half a support): corrected
+                surface = (free[:n] == 1).astype(np.uint8) & fluid[:n]
+                corr = assembly.pressure_gradient_corrected(x, p["p"], m, rho, surface, indptr,
+                                                            indices, h, dim)
+                grad[surface == 1] = corr[surface == 1]
+        vnew = vs[:n] - dt * grad / rho0[:n, None]
+        p["v"][:n][own_fluid] = vnew[own_fluid]
+        p["x"][:n][own_fluid] += dt * vnew[own_fluid]
+        div = assembly.divergence(x, p["v"], m, rho, fluid, indptr, indices, h, dim)
+        inner = own_fluid & (free[:n] == 0)
+        t_asm += time.perf_counter() - t0
+
+        comm = ctx.comm
+        self._stats = {
+            "visc_iterations": info_v["iterations"],
+            "visc_residual": info_v["residual_norm"],
+            "ppe_iterations": info_p["iterations"],
+            "ppe_residual": info_p["residual_norm"],
+            "n_free_surface": int(global_sum(comm, int(free[:n][own_fluid].sum()))),
+            "max_divergence": global_max(comm, float(np.abs(div[inner]).max()) if inner.any()
+                                         else 0.0),
+            "wall_s_fluid_assembly": t_asm,
+            "wall_s_fluid_solve": info_v["time_s"] + info_p["time_s"],
+            "wall_s_fluid_halo": self._t_halo,
+        }
+
+    def stats(self) -> dict:
+        """Iterations and residuals of both solves, free-surface count, timings of the last step."""
+        return dict(self._stats)
+
+    def state(self) -> dict:
+        """No scalar state: everything lives in the particle fields."""
+        return {}
+
+    def restore(self, ctx, state) -> None:
+        """Nothing to restore (the systems are rebuilt on the next step)."""

@@ -1,0 +1,264 @@
+r"""The TLSPH solid stage: total-Lagrangian SPH for finite-strain elastoplastic soil.
+
+One step (paper section 3, symplectic Euler as eqs. (7)-(8)), on the owned solid rows,
+with the reference-configuration neighbour lists of the driver (``ctx.indptr``):
+
+1. halo refresh of :math:`\mathbf Q = \mathbf L^T\mathbf P/\rho_0^2` (computed at the end
+   of the previous step);
+2. :math:`\frac{1}{\rho_0}\nabla_0\cdot\mathbf P` (eq. (13)), JST damping
+   :math:`c_p d(\epsilon^{(2)}\nabla_0^2\mathbf v - d^2\epsilon^{(4)}\nabla_0^4\mathbf v)`
+   (eqs. (9)-(12), one halo refresh of the Laplacian between the two passes) and
+   :math:`\mathbf g` -> :math:`\mathbf v^{\beta+1}` (eq. (7));
+3. Dirichlet constraints and wall contact (non-penetration, Coulomb friction) on
+   :math:`\mathbf v^{\beta+1}`;
+4. halo refresh of v; :math:`\dot{\mathbf F}` from eq. (14); F (eqs. (8), (20)-(21)),
+   porosity (eq. (5)), constitutive return (Appendices A/B), P (eq. (27));
+5. :math:`\mathbf x^{\beta+1} = \mathbf x^\beta + \Delta t\,\mathbf v^{\beta+1}`.
+
+All per-particle state lives in ``ctx.particles`` (F, tau, eps_e, P, eps_p, p_c,
+porosity, ...), so checkpoints and migration carry it.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from decomposition import raise_if_any
+from decomposition.reduce import global_max, global_sum
+from parsph.errors import NumericalError
+from parsph.materials import PHASE_SOLID, PHASE_WALL
+from parsph.solid import kernels
+from parsph.solid.boundary import initial_velocity, velocity_masks, wall_contact
+from parsph.solid.update import CAM_CLAY, HENCKY, C, material_table, stress_terms, \
+    update_particles, wave_speed
+
+TRIAXIAL_COLUMNS = ("axial_strain", "p_eff", "q", "spec_volume", "M")
+
+
+class TLSPH:
+    """Total-Lagrangian SPH solid stage (see the module docstring and docs/tlsph.md)."""
+
+    name = "tlsph"
+    output_fields = ()
+
+    def __init__(self, ctx):
+        p, dim = ctx.particles, ctx.dim
+        for name in ("F", "tau", "eps_e", "P"):
+            p.add_field(name, (3, 3))
+        for name in ("L", "Q"):
+            p.add_field(name, (3, 3))
+        p.add_field("lapv", (3,))
+        for name in ("p_c", "rho0", "modulus"):
+            p.add_field(name)
+        p.add_field("solid_init", (), np.uint8)
+        self.num = ctx.scene.solid
+        self.tab = material_table(ctx.materials)
+        self.rho0_of = np.ascontiguousarray(self.tab[:, C["rho0"]])
+        self.has_cam_clay = bool(np.any(self.tab[:, C["model"]] == CAM_CLAY))
+        self.has_walls = bool(ctx.scene.walls)
+        self.stats_columns = ("solid_plastic", "solid_contacts", "elastic_energy")
+        if self.num.triaxial_csv:
+            self.stats_columns += TRIAXIAL_COLUMNS
+        self._stats = {}
+
+    # ------------------------------------------------------------------ set-up
+    def _masks(self, ctx):
+        p = ctx.particles
+        self.sel = np.ascontiguousarray(p["phase"] == PHASE_SOLID)
+        self.vol = np.ascontiguousarray(p["m"] / np.where(p["rho0"] > 0, p["rho0"], 1.0))
+        self.X3 = self._pad(p["X"])
+        n = p.n_owned
+        self.vmask, self.vvalue = velocity_masks(ctx.scene.constraints, p["X"][:n],
+                                                 self.sel[:n])
+
+    @staticmethod
+    def _pad(a):
+        """(N, dim) -> (N, 3) with zero third components in 2D (the pair loops are 3D)."""
+        if a.shape[1] == 3:
+            return np.ascontiguousarray(a)
+        out = np.zeros((len(a), 3))
+        out[:, : a.shape[1]] = a
+        return out
+
+    def setup(self, ctx):
+        """Initial state (fresh runs), correction matrices, halo of the fixed fields."""
+        p, n, dim = ctx.particles, ctx.particles.n_owned, ctx.dim
+        mat = p["material"][:n]
+        solid = p["phase"][:n] == PHASE_SOLID
+        rho0 = np.where(solid, self.rho0_of[np.maximum(mat, 0)], p["m"][:n] / ctx.d ** dim)
+        p["rho0"][:n] = rho0
+        fresh = solid & (p["solid_init"][:n] == 0)
+        if fresh.any():
+            self._initial_state(ctx, fresh)
+        ctx.update_halo(["rho0"])
+        self._masks(ctx)
+        clamped = kernels.correction_matrices(p["X"], self.vol, self.sel, n, ctx.indptr,
+                                              ctx.indices, ctx.h, dim,
+                                              self.num.correction_floor, p["L"])
+        self._stats["correction_clamped"] = global_sum(ctx.comm, clamped)
+        self.fp = kernels.pair_factors(p["X"], self.sel, n, ctx.indptr, ctx.indices, ctx.h, dim)
+        self._stress_terms(ctx)
+        ctx.update_halo(["v", "L"])
+
+    def _initial_state(self, ctx, fresh):
+        p = ctx.particles
+        n = p.n_owned
+        eye = np.eye(3)
+        p["F"][:n][fresh] = eye
+        p["eps_e"][:n][fresh] = 0.0
+        p["tau"][:n][fresh] = 0.0
+        for k, m in enumerate(ctx.materials):
+            sel = fresh & (p["material"][:n] == k)
+            if hasattr(m, "porosity"):
+                p["porosity"][:n][sel] = m.porosity
+            if int(self.tab[k, C["model"]]) == CAM_CLAY:
+                p["tau"][:n][sel] = -m.initial_pressure * eye
+                p["p_c"][:n][sel] = m.preconsolidation
+        p["P"][:n][fresh] = p["tau"][:n][fresh]
+        p["p"][:n][fresh] = -np.trace(p["tau"][:n][fresh], axis1=1, axis2=2) / 3.0
+        initial_velocity(ctx.scene.constraints, p["X"][:n], p["v"][:n], fresh)
+        p["solid_init"][:n][fresh] = 1
+
+    def _stress_terms(self, ctx):
+        p = ctx.particles
+        stress_terms(p["P"], p["F"], p["L"], self.rho0_of, p["material"], self.sel,
+                     p.n_owned, ctx.dim, self.num.ambient_pressure, p["Q"])
+
+    # ------------------------------------------------------------------ time step
+    def _wave_speed(self, ctx) -> float:
+        p = ctx.particles
+        c = wave_speed(self.tab, p["material"], p["p"], p["porosity"], self.sel, p.n_owned,
+                       p["modulus"])
+        return global_max(ctx.comm, c)
+
+    def max_dt(self, ctx) -> float:
+        """CFL limit of eq. (49), solid part: ``C d / (c_p + |v|_max)``."""
+        p = ctx.particles
+        n = p.n_owned
+        v = p["v"][:n][self.sel[:n]]
+        vmax = float(np.sqrt((v * v).sum(axis=1).max())) if len(v) else 0.0
+        speed = self._wave_speed(ctx) + global_max(ctx.comm, vmax)
+        return self.num.cfl * ctx.d / speed if speed > 0 else math.inf
+
+    def step(self, ctx, dt: float) -> None:
+        """Advance the owned solid particles from t to t + dt (positions included)."""
+        p, n, dim = ctx.particles, ctx.particles.n_owned, ctx.dim
+        X, sel, fp = self.X3, self.sel, self.fp
+        args = (n, ctx.indptr, ctx.indices)
+        cp = self._wave_speed(ctx)
+        alpha = self.num.hourglass
+        ctx.update_halo(["Q", "x", "F", "modulus"] if alpha > 0.0 else ["Q", "x"])
+        acc = np.zeros((n, 3))
+        v3 = self._pad(p["v"])
+        x3 = self._pad(p["x"])
+        kernels.stress_divergence(p["Q"], X, p["m"], fp, *args, acc)
+        if alpha > 0.0:
+            kernels.hourglass(x3, X, p["F"], p["m"], self.vol, p["modulus"], fp, *args, ctx.h,
+                              dim, alpha, acc)
+        eps2, eps4 = self.num.jst_eps2, self.num.jst_eps4
+        if eps2 > 0.0 or eps4 > 0.0:
+            lap = p["lapv"]
+            kernels.laplacian(v3, x3, p["m"], p["rho0"], fp, *args, ctx.h, dim, lap)
+            jst = eps2 * lap[:n]
+            if eps4 > 0.0:
+                ctx.update_halo(["lapv"])
+                lap4 = np.zeros((n, 3))
+                kernels.laplacian(lap, x3, p["m"], p["rho0"], fp, *args, ctx.h, dim, lap4)
+                jst = jst - ctx.d ** 2 * eps4 * lap4
+            acc += cp * ctx.d * jst
+        acc = acc[:, :dim] + np.asarray(ctx.body_acceleration(ctx.time), dtype=float)[:dim]
+        solid = sel[:n]
+        v = p["v"]
+        v[:n][solid] += dt * acc[solid]
+        v[:n][self.vmask] = self.vvalue[self.vmask]
+        self._stats["solid_contacts"] = self._contact(ctx) if self.has_walls else 0
+        ctx.update_halo(["v"])
+        fdot = np.zeros((n, 3, 3))
+        kernels.velocity_gradient(self._pad(v), X, self.vol, p["L"], fp, *args, fdot)
+        bad, plastic = update_particles(self.tab, p["material"], sel, n, dt, fdot, p["F"],
+                                        p["tau"], p["eps_e"], p["P"], p["eps_p"], p["p_c"],
+                                        p["porosity"], p["p"], dim)
+        error = None
+        if bad >= 0:
+            error = NumericalError(
+                f"TLSPH: particle id {int(p['id'][bad])} inverted (det F <= 0) or its return "
+                f"map failed at t = {ctx.time:.6g} s (rank {ctx.comm.rank}); reduce solid.cfl "
+                f"or run.dt, or raise solid.jst_eps4")
+        raise_if_any(ctx.comm, error)
+        p["x"][:n][solid] += dt * v[:n][solid]
+        self._stress_terms(ctx)
+        self._stats["solid_plastic"] = global_sum(ctx.comm, plastic)
+        self._stats["elastic_energy"] = self._elastic_energy(ctx)
+        if self.num.triaxial_csv:
+            self._triaxial(ctx, dt)
+
+    def _contact(self, ctx) -> int:
+        """Collective: wall particles near this rank's solids, then :func:`wall_contact`."""
+        from parsph.neighbours import build_csr
+
+        p, n = ctx.particles, ctx.particles.n_owned
+        solid = self.sel[:n]
+        near = ctx.nearby(p["phase"][:n] == PHASE_WALL, ["x"], around=solid)
+        xw = near["x"]
+        count = 0
+        rows = np.flatnonzero(solid).astype(np.int64)
+        if len(xw) and len(rows):
+            xs = p["x"][:n][solid]
+            indptr, indices = build_csr(np.concatenate([xs, xw]), len(rows), ctx.radius)
+            count = wall_contact(xs, p["v"], len(rows), rows, np.ascontiguousarray(xw), indptr,
+                                 indices, ctx.h, ctx.d, ctx.dim, self.num.wall_friction)
+        return global_sum(ctx.comm, count)
+
+    def _elastic_energy(self, ctx) -> float:
+        """Stored Hencky energy sum V0 (mu dev e : dev e + K/2 tr(e)^2) (J or J/m in 2D)."""
+        p, n = ctx.particles, ctx.particles.n_owned
+        mat = p["material"][:n]
+        keep = self.sel[:n] & (self.tab[np.maximum(mat, 0), C["model"]] == HENCKY)
+        e = p["eps_e"][:n][keep]
+        K = self.tab[mat[keep], C["K"]]
+        mu = self.tab[mat[keep], C["mu"]]
+        tr = np.trace(e, axis1=1, axis2=2)
+        dev2 = np.einsum("nij,nij->n", e, e) - tr * tr / 3.0
+        local = float(np.sum(self.vol[:n][keep] * (mu * dev2 + 0.5 * K * tr * tr)))
+        return global_sum(ctx.comm, local)
+
+    def _triaxial(self, ctx, dt) -> None:
+        """Specimen averages for the drained triaxial test (docs/tlsph.md)."""
+        p, n, dim = ctx.particles, ctx.particles.n_owned, ctx.dim
+        solid = self.sel[:n]
+        vol0 = self.vol[:n][solid]
+        J = np.linalg.det(p["F"][:n][solid])
+        tau = p["tau"][:n][solid]
+        ax = dim - 1
+        vs = 1.0 / (1.0 - p["porosity"][:n][solid])
+        Fzz = p["F"][:n][solid][:, ax, ax]
+        head = [vol0.sum(), (J * vol0).sum(), (vol0 * Fzz).sum(), (vol0 * vs).sum()]
+        sums = np.concatenate([head, (tau * vol0[:, None, None]).sum(axis=0).ravel()])
+        sums = global_sum(ctx.comm, sums)
+        sigma = sums[4:].reshape(3, 3) / sums[1]
+        pe = -np.trace(sigma) / 3.0
+        s = sigma + pe * np.eye(3)
+        q = math.sqrt(1.5 * float(np.sum(s * s)))
+        mats = [m for m in ctx.materials if hasattr(m, "critical_state_ratio")]
+        M = mats[0].critical_state_ratio if mats else float("nan")
+        row = {"axial_strain": 1.0 - sums[2] / sums[0], "p_eff": pe, "q": q,
+               "spec_volume": sums[3] / sums[0], "M": M}
+        self._stats.update(row)
+
+    def finish(self, ctx) -> None:
+        """Write ``DIR/triaxial.csv`` from stats.csv at the end of a triaxial run."""
+        if "p_eff" in self.stats_columns and ctx.comm.rank == 0:
+            from parsph.solid.triaxial import write_from_stats
+
+            write_from_stats(ctx.out)
+
+    def stats(self) -> dict:
+        return {k: self._stats.get(k, 0.0) for k in self.stats_columns}
+
+    def state(self) -> dict:
+        return {}
+
+    def restore(self, ctx, state) -> None:
+        """All state is in particle fields; recompute the derived arrays."""
+        self._masks(ctx)
