@@ -161,7 +161,8 @@ def generate(comm, scene: Scene) -> dict:
     Returns
     -------
     dict
-        Core fields (see :data:`parsph.particles.CORE_FIELDS`).
+        Core fields (see :data:`parsph.particles.CORE_FIELDS`); ``body`` is the index of
+        the particle's body or wall in ``scene.bodies + scene.walls`` (walls after bodies).
     """
     dim = scene.domain.dim
     d = scene.domain.particle_size
@@ -169,8 +170,9 @@ def generate(comm, scene: Scene) -> dict:
     mats = [scene.materials[n] for n in names]
     fluid_mats = [m for m in mats if m.phase == 1]
     wall_density = _density(fluid_mats[0]) if fluid_mats else 1000.0
-    out = {k: [] for k in ("id", "x", "v", "m", "phase", "material")}
+    out = {k: [] for k in ("id", "x", "v", "m", "phase", "material", "body")}
     next_id = 0
+    body_index = 0
     for is_wall, items in ((False, scene.bodies), (True, scene.walls)):
         for item in items:
             x, ids, count = _generate_item(comm, scene, _lattice(scene, item, is_wall), next_id)
@@ -191,7 +193,9 @@ def generate(comm, scene: Scene) -> dict:
             out["m"].append(np.full(n, density * d ** dim))
             out["phase"].append(np.full(n, phase, dtype=np.uint8))
             out["material"].append(np.full(n, mat, dtype=np.int16))
-    dtypes = {"id": np.int64, "phase": np.uint8, "material": np.int16}
+            out["body"].append(np.full(n, body_index, dtype=np.int16))
+            body_index += 1
+    dtypes = {"id": np.int64, "phase": np.uint8, "material": np.int16, "body": np.int16}
     fields = {}
     for k, parts in out.items():
         if parts:

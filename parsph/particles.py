@@ -17,6 +17,7 @@ CORE_FIELDS = {
     "m": (lambda dim: (), np.float64),
     "phase": (lambda dim: (), np.uint8),
     "material": (lambda dim: (), np.int16),
+    "body": (lambda dim: (), np.int16),
 }
 
 

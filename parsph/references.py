@@ -1,9 +1,10 @@
 """The known answers of scenes, for ``parsph study``: each returns a relative error.
 
 A reference is a function ``(scene, run_dir) -> float`` reading the run's output; it is
-looked up by scene name, then by run mode. Physics scenes register theirs next to their
-verification tests' formulas (hydrostatic pressure, Poiseuille profiles, dam-break front,
-plate period, triaxial critical state).
+looked up by scene name, then by run mode. The physics packages register theirs with
+:func:`reference` in ``parsph/fluid/references.py`` and ``parsph/solid/references.py``
+(hydrostatic pressure, Poiseuille profiles, dam-break front, plate period, triaxial
+critical state); those modules are imported only for a scene that runs their stage.
 """
 from __future__ import annotations
 
@@ -50,8 +51,21 @@ def kinematic_positions(scene, run_dir) -> float:
     return float(np.abs(last["x"] - exact).max() / scene.domain.particle_size)
 
 
+#: Stage -> module that registers the references of the scenes running that stage.
+PROVIDERS = {"iisph": "parsph.fluid.references", "tlsph": "parsph.solid.references"}
+
+
 def reference_of(scene):
     """The reference function of a scene; a clear error if it has none."""
+    import importlib
+    import importlib.util
+
+    from parsph.pipeline import plan
+
+    for stage in plan(scene):
+        module = PROVIDERS.get(stage.name)
+        if module and importlib.util.find_spec(module) is not None:
+            importlib.import_module(module)
     fn = REFERENCES.get(scene.name) or REFERENCES.get(scene.run.mode)
     if fn is None:
         known = ", ".join(sorted(REFERENCES))

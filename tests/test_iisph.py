@@ -302,7 +302,7 @@ def test_wall_slip_is_found_per_wall(tmp_path):
     scene = load_scene(write(tmp_path, WALLS_2D, "walls.toml"))
     f = generate(MPI.COMM_SELF, scene)
     is_wall = f["phase"] == 2
-    slip = wall_slip(scene, f["x"], is_wall)
+    slip = wall_slip(scene, f["body"], is_wall)
     block = is_wall & (f["x"][:, 0] > 1.4)
     assert block.sum() == 25 and np.all(slip[block] == FREE_SLIP)
     assert np.all(slip[is_wall & ~block] == NO_SLIP) and np.all(slip[~is_wall] == 0)

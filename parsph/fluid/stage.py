@@ -96,7 +96,7 @@ class IISPH:
         rest = rest * lattice_density_ratio(ctx.h / ctx.d, dim)
         p["rho0"][:n] = rest
         p["rho"][:n] = rest
-        p["wall_slip"][:n] = wall_slip(ctx.scene, p["X"][:n], ~fluid)
+        p["wall_slip"][:n] = wall_slip(ctx.scene, p["body"][:n], ~fluid)
         self.les = self.num.smagorinsky * self.num.les_width * ctx.h
         self._ppe = self._visc = None
         self._n_rows = -1
