@@ -18,7 +18,7 @@ from parsph.errors import NumericalError, ParsphError, Preempted
 
 EXIT_OK, EXIT_BUG, EXIT_INPUT, EXIT_NUMERICAL, EXIT_PREEMPTED = 0, 1, 2, 3, 4
 VERBS = ("run", "check", "scenes", "info", "plot", "study")
-DEFAULT_SCENE = "hydrostatic"
+DEFAULT_SCENE = "slope_failure_solid"
 
 
 class _Parser(argparse.ArgumentParser):
@@ -51,7 +51,8 @@ def _parser() -> _Parser:
     sub.add_parser("info", help="versions of MPI, mpi4py, PETSc/hypre, HDF5, numba, numpy")
     pl = sub.add_parser("plot", help="render frames of a run directory to PNG")
     pl.add_argument("dir", help="run output directory (with particles.h5)")
-    pl.add_argument("--frames", default="last", help="last | all | comma-separated steps")
+    pl.add_argument("--frames", default="last",
+                    help="last | all | comma-separated steps, first, last (e.g. first,last)")
     pl.add_argument("--color-by", default="phase,speed,eps_p",
                     help="comma-separated: phase, speed, eps_p, p, rho, rank")
     pl.add_argument("--out", default=None, help="directory for the PNG files (default: DIR)")
@@ -175,11 +176,21 @@ def cmd_plot(comm, args) -> int:
     if comm.rank == 0:
         frames = args.frames
         if frames not in ("last", "all"):
-            try:
-                frames = [int(s) for s in frames.split(",")]
-            except ValueError:
-                raise ParsphError(f"--frames {args.frames!r}: give last, all or comma-separated "
-                                  f"step numbers") from None
+            from parsph.io import read_frames
+
+            steps = None
+            picked = []
+            for token in frames.split(","):
+                token = token.strip()
+                if token in ("first", "last"):
+                    steps = steps or [s for s, _ in read_frames(args.dir)]
+                    picked.append(steps[0] if token == "first" else steps[-1])
+                elif token.isdigit():
+                    picked.append(int(token))
+                else:
+                    raise ParsphError(f"--frames {args.frames!r}: give last, all, or a comma-"
+                                      f"separated list of steps, first and last")
+            frames = sorted(set(picked))
         color_by = tuple(s.strip() for s in args.color_by.split(",") if s.strip())
         for path in plot_run(args.dir, out=args.out, color_by=color_by, frames=frames):
             print(path)
