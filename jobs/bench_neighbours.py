@@ -1,16 +1,17 @@
 """Benchmark: neighbour search + density summation on a moving lattice (issue: foundation).
 
 Runs the real step (migrate, halo, cell-list neighbours, density summation eq. 33, kinematic
-move) on a periodic block of particles and prints one CSV row per case:
-particle-steps per second per core, neighbours per particle, bytes per particle.
+move) on a periodic block of particles and prints its figures in the long CSV format of
+``jobs/benchlib.py``: particle-steps per second per core, neighbours per particle, bytes
+per particle (and, with ``--breakdown``, seconds per step by stage).
 
     mpirun -n 2 .venv/bin/python jobs/bench_neighbours.py --dim 3 --particles 1e5 --steps 10
 """
 from __future__ import annotations
 
 import argparse
-import csv
 import os
+import shutil
 import sys
 import tempfile
 
@@ -21,6 +22,9 @@ from decomposition.reduce import broadcast
 from parsph.io import read_stats
 from parsph.run import run
 from parsph.scene import load_scene
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from benchlib import record  # noqa: E402
 
 SCENE = """
 [scene]
@@ -52,17 +56,13 @@ hi = {hi}
 velocity = {vel}
 """
 
-COLUMNS = ["benchmark", "dim", "particles", "ranks", "steps", "s_per_step",
-           "particle_steps_per_s_per_core", "neighbours_per_particle", "bytes_per_particle"]
-
-
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--dim", type=int, default=3)
     ap.add_argument("--particles", type=float, default=1e5)
     ap.add_argument("--steps", type=int, default=10)
-    ap.add_argument("--csv", default=None, help="append the row to this CSV file")
-    ap.add_argument("--breakdown", action="store_true", help="print seconds per step by stage")
+    ap.add_argument("--csv", default=None, help="append the figures to this CSV (jobs/benchlib.py)")
+    ap.add_argument("--breakdown", action="store_true", help="also seconds per step by stage")
     args = ap.parse_args()
     comm = world()
     dim = args.dim
@@ -86,25 +86,13 @@ def main():
         per_step = np.sum([stats[k] for k in parts], axis=0)[1:]  # step 1 excluded (warm-up)
         s_step = float(np.median(per_step))
         n = summary["particles"]
-        row = {"benchmark": "neighbours+density", "dim": dim, "particles": n,
-               "ranks": comm.size, "steps": len(per_step), "s_per_step": f"{s_step:.4g}",
-               "particle_steps_per_s_per_core": f"{n / s_step / comm.size:.4g}",
-               "neighbours_per_particle": f"{summary['neighbours_per_particle']:.1f}",
-               "bytes_per_particle": f"{summary['bytes_per_particle']:.0f}"}
+        metrics = {"s_per_step": s_step,
+                   "particle_steps_per_s_per_core": n / s_step / comm.size,
+                   "neighbours_per_particle": summary["neighbours_per_particle"],
+                   "bytes_per_particle": summary["bytes_per_particle"]}
         if args.breakdown:
-            for k in parts:
-                print(f"# {k}: {np.median(stats[k][1:]):.4g} s/step", file=sys.stderr)
-        writer = csv.DictWriter(sys.stdout, COLUMNS)
-        writer.writerow(row)
-        if args.csv:
-            new = not os.path.exists(args.csv)
-            with open(args.csv, "a", newline="") as fh:
-                w = csv.DictWriter(fh, COLUMNS)
-                if new:
-                    w.writeheader()
-                w.writerow(row)
-        import shutil
-
+            metrics.update({f"s_per_step_{k[7:]}": float(np.median(stats[k][1:])) for k in parts})
+        record(args.csv, "neighbours+density", "parsph", dim, n, comm.size, metrics)
         shutil.rmtree(tmp, ignore_errors=True)
 
 
