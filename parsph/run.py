@@ -7,7 +7,8 @@ One step (see DESIGN.md, "One time step, as data flow")::
     check: NaN/inf, particles leaving the domain      (collective, one message)
     migrate to owners (re-partition when unbalanced), refresh halo, neighbour lists
     stage.after_refresh(ctx) for diagnostic stages    (e.g. density, eq. 33)
-    stats.csv row; frame when due
+    stats.csv row; frame when due; checkpoint when due
+    SIGTERM/SIGUSR1 seen by any rank: checkpoint on every rank, stop (exit status 4)
 """
 from __future__ import annotations
 
@@ -273,16 +274,49 @@ class _StopRequest:
             signal.signal(signum, handler)
 
 
-def _initial_state(comm, scene, restart):
-    """Fields and scalars to start from: generated from the scene, or read from a checkpoint."""
+def _build(scene, out, comm, petsc_args, restart):
+    """Everything before the first step: checks, particles (generated or read from a
+    checkpoint), partition, halo, neighbours and the scene's stages, set up."""
     from parsph import checkpoint
 
+    specs = plan(scene)
+    check_budget(comm, scene, specs)
+    prepare_output(comm, out)
+    dim, d = scene.domain.dim, scene.domain.particle_size
+    h = smoothing_length(d)
+    box = Box(tuple(scene.domain.lo), tuple(scene.domain.hi), tuple(scene.domain.periodic))
     if restart is None:
-        fields = generate(comm, scene)
+        fields, ck = generate(comm, scene), None
         fields["X"] = fields["x"].copy()  # reference configuration (section 3)
-        return fields, None
-    ck = checkpoint.read(restart, comm, scene)
-    return ck.fields, ck
+    else:
+        ck = checkpoint.read(restart, comm, scene)
+        fields = ck.fields
+    particles = ParticleSet(dim, fields)
+    for name in ("eps_p", "p", "porosity"):  # written to every frame (zeros if unused)
+        particles.add_field(name)
+    lay = layout(specs)
+    ctx = Context(scene=scene, comm=comm, particles=particles, box=box, dim=dim, d=d, h=h,
+                  radius=support_radius(h), layout=lay, key="X" if lay == "reference" else "x",
+                  materials=list(scene.materials.values()), restarted=ck is not None, out=out)
+    if ck is not None:
+        ctx.time, ctx.step = float(ck.meta["time"]), int(ck.meta["step"])
+        ctx.rcb = ck.rcb  # None at another rank count: re-partitioned below
+    if any(s.name == "iisph" for s in specs):  # only then is petsc4py imported
+        import solvers
+
+        solvers.init(list(petsc_args))
+    stages = [spec.load()(ctx) for spec in specs]
+    refresh(ctx, force_partition=ctx.rcb is None)
+    for s in stages:
+        if hasattr(s, "setup"):
+            _timed(ctx, s.name, s.setup, ctx)
+        if ck is not None and hasattr(s, "restore"):
+            s.restore(ctx, ck.stage_states.get(s.name, {}))
+    for s in stages:
+        if hasattr(s, "after_refresh"):
+            _timed(ctx, s.name, s.after_refresh, ctx)
+    _check_state(ctx)
+    return ctx, specs, stages, ck
 
 
 def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
@@ -309,38 +343,8 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
 
     comm = comm or world()
     wall0 = time.perf_counter()
-    specs = plan(scene)
-    check_budget(comm, scene, specs)
-    prepare_output(comm, out)
-    dim, d = scene.domain.dim, scene.domain.particle_size
-    h = smoothing_length(d)
-    box = Box(tuple(scene.domain.lo), tuple(scene.domain.hi), tuple(scene.domain.periodic))
-    fields, ck = _initial_state(comm, scene, restart)
-    particles = ParticleSet(dim, fields)
-    for name in ("eps_p", "p", "porosity"):  # written to every frame (zeros if unused)
-        particles.add_field(name)
-    lay = layout(specs)
-    ctx = Context(scene=scene, comm=comm, particles=particles, box=box, dim=dim, d=d, h=h,
-                  radius=support_radius(h), layout=lay, key="X" if lay == "reference" else "x",
-                  materials=list(scene.materials.values()), restarted=ck is not None, out=out)
-    if ck is not None:
-        ctx.time, ctx.step = float(ck.meta["time"]), int(ck.meta["step"])
-        ctx.rcb = ck.rcb  # None at another rank count: re-partitioned below
-    if any(s.name == "iisph" for s in specs):  # only then is petsc4py imported
-        import solvers
-
-        solvers.init(list(petsc_args))
-    stages = [spec.load()(ctx) for spec in specs]
-    refresh(ctx, force_partition=ctx.rcb is None)
-    for s in stages:
-        if hasattr(s, "setup"):
-            _timed(ctx, s.name, s.setup, ctx)
-        if ck is not None and hasattr(s, "restore"):
-            s.restore(ctx, ck.stage_states.get(s.name, {}))
-    for s in stages:
-        if hasattr(s, "after_refresh"):
-            _timed(ctx, s.name, s.after_refresh, ctx)
-    _check_state(ctx)
+    ctx, specs, stages, ck = _build(scene, out, comm, petsc_args, restart)
+    particles, dim, d = ctx.particles, ctx.dim, ctx.d
     n_total = int(global_sum(comm, particles.n_owned))
     log.info("scene '%s': %d particles on %d rank(s), stages: %s%s", scene.name, n_total,
              comm.size, ", ".join(s.name for s in specs),
