@@ -83,6 +83,7 @@ BAD_INPUT = [
     (["run", "hydrostatic", "--bogus"], "unknown option '--bogus'"),
     (["check", "hydrostatic", "--set", "walls.0.sides=[\"roof\"]"], "walls[0].sides"),
     (["plot", "/nonexistent/dir"], "/nonexistent/dir"),
+    (["check", "triaxial_light", "--set", "domain.particle_size=0.0002"], "GiB"),
     (["run", "hydrostatic", "--set", "materials.water.model=hencky", "--set",
       "materials.water.poisson_ratio=0.3", "--set", "materials.water.young_modulus=1e6"],
      "materials.water.viscosity"),
