@@ -44,11 +44,29 @@ class FluidNumerics:
                                   "Bonet & Lok 1999 corrected difference on free-surface rows) | "
                                   "symmetric (eq. (37) everywhere) | corrected (everywhere)",
                                   choices=("hybrid", "symmetric", "corrected"))
+    ppe_laplacian: str = spec("corrected", doc="PPE Laplacian: corrected (eq. (35) minus "
+                              "2 e_i . grad p_i, exact for a linear pressure where the support "
+                              "is truncated, docs/iisph.md) | paper (eq. (35) as printed)",
+                              choices=("corrected", "paper"))
+    density_correction: str = spec("auto", doc="density-error term of eq. (32): both (as "
+                                   "printed) | compression (only rho > rho_0) | auto (both "
+                                   "with a free surface, compression in a closed or periodic "
+                                   "box, whose volume cannot adjust)",
+                                   choices=("auto", "both", "compression"))
+    numerical_viscosity: float = spec(0.0, doc="kappa: kappa h sqrt(|g| h) (m^2/s) is added "
+                                      "to the viscosity of every fluid particle (vanishes as "
+                                      "h^1.5; damps the free-surface noise of a fluid at rest, "
+                                      "docs/iisph.md); 0 = off", ge=0.0)
     viscous_term: str = spec("paper", doc="viscous operator: paper (eq. (34)) | morris (Morris et "
                              "al. 1997; 1 % in shear on a lattice where eq. (34) is 20 % weak)",
                              choices=("paper", "morris"))
     clamp_negative_pressure: bool = spec(True, doc="set negative PPE pressures to 0 before the "
                                          "corrector (Koshizuka & Oka 1996)")
+    clamp_wall_pressure: bool = spec(True, doc="also set negative wall (ghost) pressures to 0; "
+                                     "off: a wall particle above the water keeps the negative "
+                                     "extrapolated pressure that holds the corner particle of a "
+                                     "fluid at rest (hydrostatic), but a fluid leaving a wall is "
+                                     "pulled into it (dam break)")
     ppe_rtol: float = spec(1e-8, doc="relative tolerance of the pressure solve (ppe_ksp_rtol)",
                            gt=0.0, lt=1.0)
     visc_rtol: float = spec(1e-8, doc="relative tolerance of the viscous predictor solve "

@@ -179,7 +179,7 @@ class LinearSystem:
         self._x = self._b.duplicate()
         self._mat = None
         self._nullspace = None
-        self._pattern = None  # (keys, inverse, rows, cols, indptr, indices) of the last assembly
+        self._pattern = None  # indptr, indices (+ keys, inverse, rows, cols from triplets) of the last assembly
         self._ksp = self._create_ksp(ksp_type, pc_type, rtol, atol, max_it)
 
     # -- set-up ---------------------------------------------------------------------
@@ -276,6 +276,7 @@ class LinearSystem:
         last = self._pattern
         if (
             last is not None
+            and "rows" in last
             and rows.shape == last["rows"].shape
             and np.array_equal(rows, last["rows"])
             and np.array_equal(cols, last["cols"])
@@ -283,7 +284,7 @@ class LinearSystem:
             return False, last["keys"], last["inverse"]
         key = (rows.astype(np.int64) - self.offset) * self.n_global + cols.astype(np.int64)
         keys, inverse = np.unique(key, return_inverse=True)
-        changed = last is None or not np.array_equal(keys, last["keys"])
+        changed = last is None or "keys" not in last or not np.array_equal(keys, last["keys"])
         return changed, keys, inverse.reshape(-1)
 
     def assemble(self, rows, cols, values) -> None:
@@ -333,15 +334,77 @@ class LinearSystem:
             self._mat.assemble()
         self._ksp.setOperators(self._mat)
 
+    def assemble_csr(self, indptr, cols, values) -> None:
+        """Collective: set the matrix from a CSR block of this rank's owned scalar rows.
+
+        Parameters
+        ----------
+        indptr : numpy.ndarray of int, shape (n_local + 1,)
+            Row pointers of the owned rows (local row ``i`` is global row ``offset + i``),
+            ``indptr[0] == 0``.
+        cols : numpy.ndarray of int, shape (indptr[-1],)
+            Global column indices, sorted and distinct within each row
+            (:func:`solvers.csr.sort_csr_rows` makes them so).
+        values : numpy.ndarray of float64, shape (indptr[-1],)
+            Matrix entries.
+
+        Raises
+        ------
+        ValueError, SolverError
+            On every rank, as :meth:`assemble` (bad shapes or columns; NaN values).
+
+        Notes
+        -----
+        The fast path of the fluid stage: no sort of triplets. If ``indptr`` and ``cols``
+        equal the last pattern on every rank, only the values are rewritten; otherwise a
+        new matrix is built, preallocated exactly from this block.
+        """
+        int_type = self._PETSc.IntType
+        indptr = np.asarray(indptr)
+        cols = np.asarray(cols)
+        values = np.asarray(values, dtype=np.float64)
+        error = None
+        if indptr.shape != (self.n_local + 1,) or cols.shape != values.shape or cols.ndim != 1 \
+                or indptr[0] != 0 or indptr[-1] != cols.size:
+            error = ValueError, (
+                f"{self.prefix}: need indptr of {self.n_local + 1} entries from 0 to len(cols) and "
+                f"cols, values of one length; got {indptr.shape}, {cols.shape}, {values.shape}")
+        elif cols.size and (cols.min() < 0 or cols.max() >= self.n_global):
+            error = ValueError, (
+                f"{self.prefix}: columns in {int(cols.min())}..{int(cols.max())}, outside the "
+                f"global range 0..{self.n_global - 1}")
+        elif not np.isfinite(values).all():
+            error = SolverError, (
+                f"{self.prefix}: {int((~np.isfinite(values)).sum())} matrix values are NaN or "
+                "infinite; the fields the matrix is built from have blown up: try a smaller time step")
+        last = self._pattern
+        changed = error is None and (
+            last is None or last["indptr"].shape != indptr.shape
+            or last["indices"].shape != cols.shape
+            or not np.array_equal(last["indptr"], indptr)
+            or not np.array_equal(last["indices"], cols))
+        rebuild = _agree(self.comm, error, changed) or self._mat is None
+        if rebuild:
+            self._build_csr(indptr.astype(int_type), cols.astype(int_type), values)
+        else:
+            self._mat.setValuesCSR(last["indptr"], last["indices"], values,
+                                   addv=self._PETSc.InsertMode.INSERT_VALUES)
+            self._mat.assemble()
+        self._ksp.setOperators(self._mat)
+
     def _build(self, rows, cols, keys, inverse, data) -> None:
         """Collective: a new matrix preallocated exactly from the CSR block of the owned rows."""
-        PETSc = self._PETSc
-        int_type = PETSc.IntType
+        int_type = self._PETSc.IntType
         local_row = keys // self.n_global
         indptr = np.zeros(self.n_local + 1, dtype=int_type)
         np.cumsum(np.bincount(local_row, minlength=self.n_local), out=indptr[1:])
         indices = (keys % self.n_global).astype(int_type)
+        self._build_csr(indptr, indices, data)
+        self._pattern.update(rows=rows.copy(), cols=cols.copy(), keys=keys, inverse=inverse)
 
+    def _build_csr(self, indptr, indices, data) -> None:
+        """Collective: a new matrix preallocated exactly from a sorted CSR block."""
+        PETSc = self._PETSc
         mat = PETSc.Mat().create(comm=self.comm)
         mat.setSizes(((self.n_local, self.n_global), (self.n_local, self.n_global)), bsize=self.block_size)
         mat.setType(PETSc.Mat.Type.AIJ)
@@ -359,8 +422,7 @@ class LinearSystem:
             self._ksp.reset()  # frees the preconditioner built on the old pattern
             self._mat.destroy()
         self._mat = mat
-        self._pattern = dict(rows=rows.copy(), cols=cols.copy(), keys=keys, inverse=inverse,
-                             indptr=indptr, indices=indices)
+        self._pattern = dict(indptr=indptr, indices=indices)
         self.n_builds += 1
 
     # -- solve ----------------------------------------------------------------------

@@ -7,13 +7,12 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
-from parsph.fluid import assembly, rheology
-from parsph.io import read_frame, read_frames
+from parsph.fluid import assembly, references, rheology
+from parsph.fluid.references import front_positions  # noqa: F401 (used by the stability tests)
+from parsph.io import read_frame
 from parsph.kernel import fac_grad, smoothing_length, w
 from parsph.run import run
 from parsph.scene import load_scene
-
-DATA = os.path.join(os.path.dirname(__file__), "data")
 
 
 def _by_id(frame):
@@ -155,15 +154,13 @@ def test_strain_rate_of_simple_shear_and_bingham_viscosity():
 def test_hydrostatic_pressure(comm, mpi_tmp_path):
     """p = rho g (H - y) within 2 % of rho g H (the free-surface particles at y = H - d/2
     carry p = 0, an offset of rho g d / 2 = 1.25 % at d = H / 40)."""
-    _, out, _ = _run(comm, mpi_tmp_path, "hydrostatic",
-                     ["domain.particle_size=0.025", "run.end_time=0.1", "output.every=0.1"])
+    scene, out, _ = _run(comm, mpi_tmp_path, "hydrostatic",
+                         ["domain.particle_size=0.025", "run.end_time=0.1", "output.every=0.1"])
     if comm.rank == 0:
-        f = _last(out)
-        fl = f["phase"] == 1
-        y, p = f["x"][fl, 1], f["p"][fl]
-        err = np.abs(p - 1000 * 9.81 * (1.0 - y)) / (1000 * 9.81 * 1.0)
+        err = references.hydrostatic_error(_last(out), 1000.0, 9.81, 1.0)
         assert err.max() < 0.02
         assert np.sqrt(np.mean(err ** 2)) < 0.015
+        assert references.hydrostatic(scene, out) == pytest.approx(np.sqrt(np.mean(err ** 2)))
 
 
 def test_hydrostatic_at_rest_after_one_second(comm, mpi_tmp_path):
@@ -175,15 +172,8 @@ def test_hydrostatic_at_rest_after_one_second(comm, mpi_tmp_path):
         fl = f["phase"] == 1
         v = f["v"][fl]
         scale = math.sqrt(9.81 * 1.0)  # sqrt(g H)
-        assert np.sqrt((v ** 2).sum(1).mean()) < 0.01 * scale
+        assert np.sqrt((v ** 2).sum(1).mean()) < 0.003 * scale
         assert f["x"][fl, 1].max() < 1.0 + 0.05 and f["x"][fl, 1].min() > 0.0
-
-
-def _channel_profile(f, exact):
-    fl = f["phase"] == 1
-    y, u = f["x"][fl, 1], f["v"][fl, 0]
-    ex = exact(y)
-    return u, ex
 
 
 @pytest.mark.parametrize("name", ["poiseuille", "bingham_poiseuille"])
@@ -191,53 +181,35 @@ def test_channel_profiles(comm, mpi_tmp_path, name):
     F, nu = 0.05, 0.1
     if name == "poiseuille":
         def exact(y):
-            return F * y * (1 - y) / (2 * nu)
+            return references.poiseuille_exact(y, F, nu)
         end = 6.0
     else:
-        yp = 0.0125 / F
-
         def exact(y):
-            yc = np.abs(y - 0.5)
-            return np.where(yc < yp, F * (0.5 - yp) ** 2 / (2 * nu),
-                            F / (2 * nu) * ((0.5 - yp) ** 2 - (yc - yp) ** 2))
+            return references.bingham_poiseuille_exact(y, F, nu, 0.0125)
         end = 12.0
-    _, out, _ = _run(comm, mpi_tmp_path, name, [f"run.end_time={end}", "output.every=2.0"])
+    scene, out, _ = _run(comm, mpi_tmp_path, name, [f"run.end_time={end}", "output.every=2.0"])
     if comm.rank == 0:
-        u, ex = _channel_profile(_last(out), exact)
-        assert np.sqrt(np.mean((u - ex) ** 2)) / ex.max() < 0.02
+        u, ex = references.channel_profile(_last(out), exact)
+        assert references.profile_l2(u, ex) < 0.02
+        assert references.channel(scene, out) == pytest.approx(references.profile_l2(u, ex))
         assert u.max() == pytest.approx(ex.max(), rel=0.02)
         if name == "bingham_poiseuille":
             assert ex.max() == pytest.approx(0.015625)
 
 
-def front_positions(out, a, d):
-    """(T, Z): t sqrt(2 g / a) and the front x / a (rightmost fluid particle near the floor)."""
-    h5 = os.path.join(out, "particles.h5")
-    T, Z = [], []
-    for step, t in read_frames(h5):
-        f = read_frame(h5, step)
-        x = f["x"][f["phase"] == 1]
-        low = x[:, 1] < 0.1 * a + 1e-9
-        T.append(t * math.sqrt(2 * 9.81 / a))
-        Z.append((x[low, 0].max() + 0.5 * d) / a)
-    return np.array(T), np.array(Z)
-
-
 def test_dam_break_front_against_experiment(comm, mpi_tmp_path):
     """Surge front z/a against Martin & Moyce (1952) and Koshizuka & Oka (1996)."""
     a, d = 0.146, 0.0146
-    _, out, _ = _run(comm, mpi_tmp_path, "dam_break",
-                     [f"domain.particle_size={d}", "run.end_time=0.2", "output.every=0.02"])
+    scene, out, _ = _run(comm, mpi_tmp_path, "dam_break",
+                         [f"domain.particle_size={d}", "run.end_time=0.2", "output.every=0.02"])
     if comm.rank == 0:
         T, Z = front_positions(out, a, d)
-        for fname in ("martin_moyce_1952.csv", "koshizuka_oka_1996.csv"):
-            Te, Ze = np.loadtxt(os.path.join(DATA, fname), delimiter=",", comments="#",
-                                unpack=True)
-            keep = (Te > 0.5) & (Te <= T.max())
-            sim = np.interp(Te[keep], T, Z)
+        for fname in references.DAM_BREAK_DATA:
+            Te, sim, ze = references.front_errors(T, Z, fname)
             # simulations of this experiment run ahead of it (gate release, bed friction);
             # within 15 % here (see docs/iisph.md for the measured figures)
-            assert np.all(np.abs(sim - Ze[keep]) / Ze[keep] < 0.15), (Te[keep], sim, Ze[keep])
+            assert np.all(np.abs(sim - ze) / ze < 0.15), (Te, sim, ze)
+        assert references.dam_break(scene, out) < 0.1
 
 
 @pytest.mark.mpi

@@ -311,3 +311,45 @@ def test_info_and_late_init(comm):
         assert PETSc.Options().getInt("tst_late_option") == 3
     finally:
         PETSc.Options().delValue("tst_late_option")
+
+
+def test_assemble_csr_matches_triplets_and_reuses_the_pattern(comm):
+    """The CSR path (numba COO -> CSR, then assemble_csr) gives the triplet path's
+    matrix; the same pattern rewrites values only, a new pattern rebuilds."""
+    from solvers.csr import coo_to_csr
+
+    n = 24
+    total = n * n
+    with LinearSystem(comm, "tst_", block_rows(comm, total), rtol=KSP_RTOL_EXACT) as system:
+        first, stop = system.owned_range
+        rows, cols, values = poisson_triplets(n, np.arange(first, stop))
+        order = np.random.default_rng(3 + comm.rank).permutation(rows.size)
+        # duplicates: the diagonal split in two halves
+        rows = np.concatenate([rows[order], np.arange(first, stop)])
+        cols = np.concatenate([cols[order], np.arange(first, stop)])
+        values = np.concatenate([values[order], np.full(stop - first, -2.0)])
+        values[-(stop - first):] = 2.0
+        values[np.flatnonzero(rows[: order.size] == cols[: order.size])] = 2.0
+        indptr, c, v = coo_to_csr(rows, cols, values, first, stop - first)
+        assert np.all(np.diff(indptr) >= 0) and indptr[-1] == c.size
+        for i in range(stop - first):
+            assert np.all(np.diff(c[indptr[i]:indptr[i + 1]]) > 0)  # sorted, no duplicates
+        system.assemble_csr(indptr, c, v)
+        x, _ = system.solve(rhs_of(total)[first:stop])
+        reference = spla.spsolve(full_matrix(total, poisson_triplets(n, np.arange(total))),
+                                 rhs_of(total))
+        assert_matches(x, reference[first:stop])
+        mat = system.mat
+        system.assemble_csr(indptr, c, 2.0 * v)
+        assert system.mat is mat and system.n_builds == 1
+        x, _ = system.solve(rhs_of(total)[first:stop])
+        assert_matches(x, 0.5 * reference[first:stop])
+        nl = stop - first  # a new pattern (the identity) builds a new matrix
+        system.assemble_csr(np.arange(nl + 1), np.arange(first, stop), np.ones(nl))
+        assert system.n_builds == 2
+        x, _ = system.solve(rhs_of(total)[first:stop])
+        assert_matches(x, rhs_of(total)[first:stop])
+        with pytest.raises(ValueError, match="global range"):
+            system.assemble_csr(indptr, c + system.n_global, v)
+        with pytest.raises(SolverError, match="NaN"):
+            system.assemble_csr(indptr, c, np.full(v.size, np.nan))

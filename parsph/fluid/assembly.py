@@ -221,11 +221,17 @@ def viscous_triplets(x, v, m, rho, nu, fluid, slip, row, indptr, indices, h, dim
 
 @njit(cache=True)
 def ppe_triplets(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt, alpha,
-                 d, ga):
-    """Triplets and right-hand side of the stabilised PPE (32) with (35), (36) and walls.
+                 d, ga, corrected=False, expansion=False):
+    r"""Triplets and right-hand side of the stabilised PPE (32) with (35), (36) and walls.
 
     ``vs`` is the predicted velocity v* of all rows (boundary rows: their own velocity
     plus ``dt g``, see ``docs/iisph.md``); ``ga`` is ``g - a_w`` (m/s^2) of the walls.
+    With ``corrected`` the Laplacian (35) of a fluid row gets the first-order correction
+    :math:`- 2\,\mathbf{e}_i\cdot\mathbf{L}_i \sum_j V_j (p_j - p_i) \nabla W_{ij}`,
+    :math:`\mathbf{e}_i = \sum_j (m_j/\rho_i) \nabla W_{ij}` (zero for a full support),
+    :math:`\mathbf{L}_i` as in :func:`pressure_gradient_corrected`: a linear pressure
+    is then harmonic even where the support is truncated (the layers under the free
+    surface; cf. Schwaiger 2008, Fatehi & Manzari 2011), which (35) alone is not.
     Returns ``(rows, cols, vals, rhs)`` (global scalar rows, ``rhs`` of shape (n_owned,)).
     """
     n = indptr.shape[0] - 1
@@ -235,6 +241,8 @@ def ppe_triplets(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim,
     cols = np.empty(cap, dtype=np.int64)
     vals = np.empty(cap)
     rhs = np.zeros(n)
+    ev = np.zeros(dim)
+    L = np.zeros((dim, dim))
     k = 0
     for i in range(n):
         ri = row[i]
@@ -242,6 +250,9 @@ def ppe_triplets(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim,
             s = rho[i] * d * d / (2.0 * rho0[i])
             div = 0.0
             diag = 0.0
+            use_corr = False
+            if corrected:
+                use_corr = _truncation_vector(x, m, rho, indptr, indices, i, h, dim, ev, L)
             for p in range(indptr[i], indptr[i + 1]):
                 j = indices[p]
                 r2 = 0.0
@@ -253,6 +264,14 @@ def ppe_triplets(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim,
                 f = fac_grad(math.sqrt(r2), h, dim)
                 div += m[j] * dvr * f
                 c = -s * 2.0 / rho[i] * m[j] * f  # >= 0
+                if use_corr:  # + 2 s e_i . L_i V_j grad W_ij (p_j - p_i)
+                    eb = 0.0
+                    for a in range(dim):
+                        la = 0.0
+                        for b in range(dim):
+                            la += L[a, b] * (x[i, b] - x[j, b])
+                        eb += ev[a] * la
+                    c -= 2.0 * s * m[j] / rho[j] * f * eb
                 diag += c
                 rows[k] = ri
                 cols[k] = row[j]
@@ -261,7 +280,8 @@ def ppe_triplets(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim,
             div /= rho[i]
             # density-error term of eq. (32) for compression only: under-density near
             # the free surface is kernel truncation, not expansion (docs/iisph.md)
-            source = rho0[i] * div / dt + alpha * min(rho0[i] - rho[i], 0.0) / (dt * dt)
+            drho = rho0[i] - rho[i] if expansion else min(rho0[i] - rho[i], 0.0)
+            source = rho0[i] * div / dt + alpha * drho / (dt * dt)
             # eq. (35) as sum a_ij (p_i - p_j) with a_ij = -(2/rho_i) m_j F_ij = -source
             rhs[i] = -s * source
             rows[k] = ri
@@ -306,6 +326,68 @@ def ppe_triplets(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim,
                         acc += wij * rho[j] * gr
                 rhs[i] = acc
     return rows[:k], cols[:k], vals[:k], rhs
+
+
+@njit(cache=True)
+def _truncation_vector(x, m, rho, indptr, indices, i, h, dim, ev, L):
+    """``ev`` = sum_j (m_j / rho_i) grad W_ij and ``L`` = the inverse of
+    sum_j V_j grad W_ij (x) (x_j - x_i) of row ``i``; False where that matrix is near
+    singular (no correction then)."""
+    ev[:] = 0.0
+    M = L  # accumulated in place, inverted below
+    M[:, :] = 0.0
+    for p in range(indptr[i], indptr[i + 1]):
+        j = indices[p]
+        r2 = 0.0
+        for a in range(dim):
+            e = x[i, a] - x[j, a]
+            r2 += e * e
+        f = fac_grad(math.sqrt(r2), h, dim)
+        for a in range(dim):
+            ga = f * (x[i, a] - x[j, a])
+            ev[a] += m[j] / rho[i] * ga
+            for b in range(dim):
+                M[a, b] += m[j] / rho[j] * ga * (x[j, b] - x[i, b])
+    return _invert_small(M, dim)
+
+
+@njit(cache=True)
+def _invert_small(M, dim):
+    """Invert the 2x2 or 3x3 matrix ``M`` in place (no LAPACK call, no allocation);
+    False (``M`` unchanged) where it is near singular: trace <= 0 or
+    det <= 1e-3 (trace / dim)^dim."""
+    tr = 0.0
+    for a in range(dim):
+        tr += M[a, a]
+    if tr <= 0.0:
+        return False
+    if dim == 2:
+        det = M[0, 0] * M[1, 1] - M[0, 1] * M[1, 0]
+        if det <= 1e-3 * (tr / 2) ** 2:
+            return False
+        a00, a01, a10, a11 = M[0, 0], M[0, 1], M[1, 0], M[1, 1]
+        M[0, 0], M[0, 1], M[1, 0], M[1, 1] = a11 / det, -a01 / det, -a10 / det, a00 / det
+        return True
+    c00 = M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1]
+    c01 = M[1, 2] * M[2, 0] - M[1, 0] * M[2, 2]
+    c02 = M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0]
+    det = M[0, 0] * c00 + M[0, 1] * c01 + M[0, 2] * c02
+    if det <= 1e-3 * (tr / 3) ** 3:
+        return False
+    inv = np.empty((3, 3))
+    inv[0, 0] = c00
+    inv[1, 0] = c01
+    inv[2, 0] = c02
+    inv[0, 1] = M[0, 2] * M[2, 1] - M[0, 1] * M[2, 2]
+    inv[1, 1] = M[0, 0] * M[2, 2] - M[0, 2] * M[2, 0]
+    inv[2, 1] = M[0, 1] * M[2, 0] - M[0, 0] * M[2, 1]
+    inv[0, 2] = M[0, 1] * M[1, 2] - M[0, 2] * M[1, 1]
+    inv[1, 2] = M[0, 2] * M[1, 0] - M[0, 0] * M[1, 2]
+    inv[2, 2] = M[0, 0] * M[1, 1] - M[0, 1] * M[1, 0]
+    for a in range(3):
+        for b in range(3):
+            M[a, b] = inv[a, b] / det
+    return True
 
 
 @njit(cache=True)
@@ -402,3 +484,4 @@ def pressure_gradient_corrected(x, p, m, rho, fluid, indptr, indices, h, dim):
             for a in range(dim):
                 out[i, a] = s[a]
     return out
+

@@ -28,6 +28,7 @@ from decomposition.reduce import global_any, global_max, global_min, global_sum
 from parsph.fluid import assembly, rheology
 from parsph.fluid.walls import wall_slip
 from parsph.materials import PHASE_FLUID
+from solvers.csr import coo_to_csr, sort_neighbours_by_row
 
 STATS = ("visc_iterations", "visc_residual", "ppe_iterations", "ppe_residual",
          "n_free_surface", "max_divergence", "wall_s_fluid_assembly", "wall_s_fluid_solve",
@@ -146,16 +147,17 @@ class IISPH:
         return dt
 
     @staticmethod
-    def _pin_if_confined(ctx, fluid, free) -> None:
+    def _pin_if_confined(ctx, fluid, free) -> bool:
         """Collective: with no free surface anywhere (a closed or periodic box) the PPE
         fixes the pressure only up to a constant; the fluid particle of smallest id then
-        gets p = 0 (a Dirichlet row) so that the matrix is not singular."""
+        gets p = 0 (a Dirichlet row) so that the matrix is not singular. True if pinned."""
         if global_sum(ctx.comm, int(free[fluid.astype(bool)].sum())) > 0:
-            return
+            return False
         ids = ctx.particles["id"][: ctx.n_owned]
         mine = ids[fluid.astype(bool)]
         first = global_min(ctx.comm, int(mine.min()) if len(mine) else np.iinfo(np.int64).max)
         free[(ids == first) & fluid.astype(bool)] = 1
+        return True
 
     def _halo(self, ctx, names):
         t0 = time.perf_counter()
@@ -173,7 +175,8 @@ class IISPH:
         self._halo(ctx, ["fluid_row"])
         t0 = time.perf_counter()
         x, m, row = p["x"], p["m"], p["fluid_row"]
-        indptr, indices = ctx.indptr, ctx.indices
+        # neighbours in global row order: the matrix rows come out (nearly) sorted
+        indptr, indices = ctx.indptr, sort_neighbours_by_row(ctx.indptr, ctx.indices, row)
         fluid = (p["phase"] == PHASE_FLUID).astype(np.uint8)
         slip = p["wall_slip"]
         rho, rho0 = p["rho"], p["rho0"]
@@ -181,7 +184,7 @@ class IISPH:
         assembly.density_and_surface(x, m, fluid, rho0, indptr, indices, h, dim,
                                      self.num.free_surface_beta, self.num.free_surface_gamma,
                                      rho, free)
-        self._pin_if_confined(ctx, fluid[:n], free[:n])
+        confined = self._pin_if_confined(ctx, fluid[:n], free[:n])
         t_asm = time.perf_counter() - t0
         self._halo(ctx, ["rho"])
 
@@ -192,6 +195,9 @@ class IISPH:
         gamma = rheology.strain_rate(x, vel, m, rho, fluid, slip, indptr, indices, h, dim)
         p["nu"][:n] = rheology.viscosity(gamma, p["p"][:n], fluid[:n], p["material"][:n],
                                          self.table, self.les)
+        if self.num.numerical_viscosity > 0:  # kappa h sqrt(|g| h), vanishes as h^1.5
+            gnorm = float(np.linalg.norm(ctx.body_acceleration(ctx.time)))
+            p["nu"][:n][fluid[:n] == 1] += self.num.numerical_viscosity * h * math.sqrt(gnorm * h)
         t_asm += time.perf_counter() - t0
         self._halo(ctx, ["nu"])
 
@@ -200,7 +206,7 @@ class IISPH:
         rows, cols, vals, rhs = assembly.viscous_triplets(
             x, p["v"], m, rho, p["nu"], fluid, slip, row, indptr, indices, h, dim, dt, g,
             self.num.viscous_term == "morris")
-        visc.assemble(rows, cols, vals)
+        visc.assemble_csr(*coo_to_csr(rows, cols, vals, visc.offset, visc.n_local))
         t_asm += time.perf_counter() - t0
         vstar, info_v = visc.solve(rhs, x0=p["v"][:n])
         own_fluid = fluid[:n].astype(bool)
@@ -218,12 +224,17 @@ class IISPH:
             else self.num.alpha
         rows, cols, vals, rhs = assembly.ppe_triplets(
             x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt,
-            alpha, d, ga)
-        ppe.assemble(rows, cols, vals)
+            alpha, d, ga, self.num.ppe_laplacian == "corrected",
+            self.num.density_correction == "both" or
+            (self.num.density_correction == "auto" and not confined))
+        ppe.assemble_csr(*coo_to_csr(rows, cols, vals, ppe.offset, ppe.n_local))
         t_asm += time.perf_counter() - t0
         pres, info_p = ppe.solve(rhs, x0=p["p"][:n])
         if self.num.clamp_negative_pressure:  # MPS practice (Koshizuka & Oka 1996)
-            pres = np.maximum(pres, 0.0)
+            # wall rows above the free surface extrapolate a negative pressure that keeps
+            # the corner particle in equilibrium: clamped, it is pushed off the wall
+            clamp = own_fluid | self.num.clamp_wall_pressure
+            pres = np.where(clamp, np.maximum(pres, 0.0), pres)
         p["p"][:n] = pres
         self._halo(ctx, ["p"])
 
