@@ -1,7 +1,8 @@
 """Benchmark: IISPH dam break, PPE iterations and time per step as the particle count grows.
 
 Runs the built-in ``dam_break`` scene at a given particle size for a fixed number of
-steps and prints one CSV row: particles, ranks, PPE and viscous KSP iterations (median
+steps and prints its figures (long CSV format of ``jobs/benchlib.py``): PPE and viscous
+KSP iterations (median
 over the steps), seconds per step split into fluid assembly (numba triplets + CSR),
 solves (KSPSolve), the stage's halo refreshes and the infrastructure (migrate, halo,
 neighbours), and particle-steps per second per core. Steps 1-2 (JIT warm-up, first
@@ -16,7 +17,6 @@ particles. PETSc options after ``--`` pass through (e.g. ``-- -ppe_ksp_rtol 1e-1
 from __future__ import annotations
 
 import argparse
-import csv
 import os
 import shutil
 import sys
@@ -30,9 +30,8 @@ from parsph.io import read_stats
 from parsph.run import run
 from parsph.scene import load_scene
 
-COLUMNS = ["benchmark", "particles", "ranks", "steps", "ppe_iterations", "visc_iterations",
-           "s_per_step", "s_assembly", "s_solve", "s_fluid_halo", "s_infrastructure",
-           "particle_steps_per_s_per_core"]
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from benchlib import record  # noqa: E402
 
 
 def main():
@@ -60,25 +59,16 @@ def main():
         per_step = infra + col("wall_s_iisph")
         s_step = float(np.median(per_step))
         n = summary["particles"]
-        row = {"benchmark": "iisph_dam_break", "particles": n, "ranks": comm.size,
-               "steps": len(per_step),
-               "ppe_iterations": f"{np.median(col('ppe_iterations')):.0f}",
-               "visc_iterations": f"{np.median(col('visc_iterations')):.0f}",
-               "s_per_step": f"{s_step:.4g}",
-               "s_assembly": f"{np.median(col('wall_s_fluid_assembly')):.4g}",
-               "s_solve": f"{np.median(col('wall_s_fluid_solve')):.4g}",
-               "s_fluid_halo": f"{np.median(col('wall_s_fluid_halo')):.4g}",
-               "s_infrastructure": f"{np.median(infra):.4g}",
-               "particle_steps_per_s_per_core": f"{n / s_step / comm.size:.4g}"}
-        writer = csv.DictWriter(sys.stdout, COLUMNS)
-        writer.writerow(row)
-        if args.csv:
-            new = not os.path.exists(args.csv)
-            with open(args.csv, "a", newline="") as fh:
-                w = csv.DictWriter(fh, COLUMNS)
-                if new:
-                    w.writeheader()
-                w.writerow(row)
+        metrics = {"steps": len(per_step),
+                   "ppe_iterations": float(np.median(col("ppe_iterations"))),
+                   "visc_iterations": float(np.median(col("visc_iterations"))),
+                   "s_per_step": s_step,
+                   "s_per_step_assembly": float(np.median(col("wall_s_fluid_assembly"))),
+                   "s_per_step_solve": float(np.median(col("wall_s_fluid_solve"))),
+                   "s_per_step_fluid_halo": float(np.median(col("wall_s_fluid_halo"))),
+                   "s_per_step_infrastructure": float(np.median(infra)),
+                   "particle_steps_per_s_per_core": n / s_step / comm.size}
+        record(args.csv, "iisph_dam_break", "parsph", 2, n, comm.size, metrics)
         shutil.rmtree(tmp, ignore_errors=True)
 
 
