@@ -33,7 +33,7 @@ def markdown() -> str:
     lines += ["## [materials.NAME]", "", "`model` selects the parameters a material takes.", ""]
     for name, cls in MODELS.items():
         doc = (cls.__doc__ or "").strip().splitlines()[0]
-        rows = [r for r in schema.describe(cls, f"materials.NAME.") if not r[0].endswith(".model")]
+        rows = [r for r in schema.describe(cls, "materials.NAME.") if not r[0].endswith(".model")]
         lines += [f"### model = \"{name}\"", "", doc, ""] + _table(rows) + [""]
     return "\n".join(lines)
 

@@ -95,3 +95,41 @@ def write(tmpdir, text, name="scene.toml"):
     with open(path, "w") as fh:
         fh.write(text)
     return path
+
+
+def by_id(frame):
+    """A frame's fields ordered by global id."""
+    import numpy as np
+
+    order = np.argsort(frame["id"])
+    return {k: v[order] for k, v in frame.items()}
+
+
+def last_frame(out):
+    """The last frame of a run directory, ordered by global id."""
+    import os
+
+    from parsph.io import read_frame
+
+    return by_id(read_frame(os.path.join(out, "particles.h5"), "last"))
+
+
+def run_on_one_and_two(comm, scene, tmpdir):
+    """The keystone comparison: run ``scene`` on rank 0 alone, then on all ranks.
+
+    Returns the two run directories (``tmpdir/one``, ``tmpdir/two``); compare their
+    frames by global id on rank 0.
+    """
+    import os
+
+    from mpi4py import MPI
+
+    from parsph.run import run
+
+    one_dir, two_dir = os.path.join(tmpdir, "one"), os.path.join(tmpdir, "two")
+    one = comm.Split(0 if comm.rank == 0 else MPI.UNDEFINED, comm.rank)
+    if comm.rank == 0:
+        run(scene, one_dir, comm=one, progress=False)
+        one.Free()
+    run(scene, two_dir, comm=comm, progress=False)
+    return one_dir, two_dir

@@ -9,15 +9,10 @@ from mpi4py import MPI
 
 from parsph.fluid import assembly, references, rheology
 from parsph.fluid.references import front_positions  # noqa: F401 (used by the stability tests)
-from parsph.io import read_frame
 from parsph.kernel import fac_grad, smoothing_length, w
 from parsph.run import run
 from parsph.scene import load_scene
-
-
-def _by_id(frame):
-    order = np.argsort(frame["id"])
-    return {k: v[order] for k, v in frame.items()}
+from tests.scenes import last_frame, run_on_one_and_two
 
 
 def _run(comm, tmp, name, overrides, sub="out"):
@@ -25,10 +20,6 @@ def _run(comm, tmp, name, overrides, sub="out"):
     out = os.path.join(tmp, sub)
     summary = run(scene, out, comm=comm, progress=False)
     return scene, out, summary
-
-
-def _last(out):
-    return _by_id(read_frame(os.path.join(out, "particles.h5"), "last"))
 
 
 # --------------------------------------------------------------------------- matrices
@@ -157,7 +148,7 @@ def test_hydrostatic_pressure(comm, mpi_tmp_path):
     scene, out, _ = _run(comm, mpi_tmp_path, "hydrostatic",
                          ["domain.particle_size=0.025", "run.end_time=0.1", "output.every=0.1"])
     if comm.rank == 0:
-        err = references.hydrostatic_error(_last(out), 1000.0, 9.81, 1.0)
+        err = references.hydrostatic_error(last_frame(out), 1000.0, 9.81, 1.0)
         assert err.max() < 0.02
         assert np.sqrt(np.mean(err ** 2)) < 0.015
         assert references.hydrostatic(scene, out) == pytest.approx(np.sqrt(np.mean(err ** 2)))
@@ -168,7 +159,7 @@ def test_hydrostatic_at_rest_after_one_second(comm, mpi_tmp_path):
                      ["domain.particle_size=0.05", "run.end_time=1.0",
                       "output.every=0.5"])
     if comm.rank == 0:
-        f = _last(out)
+        f = last_frame(out)
         fl = f["phase"] == 1
         v = f["v"][fl]
         scale = math.sqrt(9.81 * 1.0)  # sqrt(g H)
@@ -189,7 +180,7 @@ def test_channel_profiles(comm, mpi_tmp_path, name):
         end = 12.0
     scene, out, _ = _run(comm, mpi_tmp_path, name, [f"run.end_time={end}", "output.every=2.0"])
     if comm.rank == 0:
-        u, ex = references.channel_profile(_last(out), exact)
+        u, ex = references.channel_profile(last_frame(out), exact)
         assert references.profile_l2(u, ex) < 0.02
         assert references.channel(scene, out) == pytest.approx(references.profile_l2(u, ex))
         assert u.max() == pytest.approx(ex.max(), rel=0.02)
@@ -214,15 +205,11 @@ def test_dam_break_front_against_experiment(comm, mpi_tmp_path):
 
 @pytest.mark.mpi
 def test_one_vs_two_ranks_agree_by_id(comm, mpi_tmp_path):
-    overrides = ["domain.particle_size=0.0146", "run.end_time=0.04", "output.every=0.04"]
-    one = comm.Split(0 if comm.rank == 0 else MPI.UNDEFINED, comm.rank)
+    scene = load_scene("dam_break", ["output.progress=false", "domain.particle_size=0.0146",
+                                     "run.end_time=0.04", "output.every=0.04"])
+    one, two = run_on_one_and_two(comm, scene, mpi_tmp_path)
     if comm.rank == 0:
-        _run(one, mpi_tmp_path, "dam_break", overrides, sub="one")
-        one.Free()
-    _run(comm, mpi_tmp_path, "dam_break", overrides, sub="two")
-    if comm.rank == 0:
-        a = _last(os.path.join(mpi_tmp_path, "one"))
-        b = _last(os.path.join(mpi_tmp_path, "two"))
+        a, b = last_frame(one), last_frame(two)
         assert np.array_equal(a["id"], b["id"])
         assert set(np.unique(b["rank"])) == {0, 1}
         # both solves converge to rtol 1e-8: positions agree far below the spacing

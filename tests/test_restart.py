@@ -8,21 +8,14 @@ import pytest
 from mpi4py import MPI
 
 from parsph.errors import ParsphError
-from parsph.io import read_frame
 from parsph.run import run
 from parsph.scene import load_scene
-from tests.scenes import MOVING_2D, write
+from tests.scenes import MOVING_2D, last_frame, write
 
 
 def _scene(comm, tmp, overrides=()):
     path = comm.bcast(write(tmp, MOVING_2D) if comm.rank == 0 else None)
     return load_scene(path, list(overrides))
-
-
-def _last(path):
-    f = read_frame(os.path.join(path, "particles.h5"), "last")
-    order = np.argsort(f["id"])
-    return {k: v[order] for k, v in f.items()}
 
 
 def _interrupted_and_whole(comm_a, comm_b, tmp, tag):
@@ -42,7 +35,7 @@ def _interrupted_and_whole(comm_a, comm_b, tmp, tag):
 def test_restart_is_bit_for_bit_at_equal_rank_count(comm, mpi_tmp_path):
     half, whole = _interrupted_and_whole(comm, comm, mpi_tmp_path, "same")
     if comm.rank == 0:
-        a, b = _last(half), _last(whole)
+        a, b = last_frame(half), last_frame(whole)
         for key in ("id", "x", "v", "rho", "rank"):
             assert np.array_equal(a[key], b[key]), key
         steps_a = [s for s in h5py.File(os.path.join(half, "particles.h5"))["frames"]]
@@ -71,7 +64,7 @@ def test_restart_on_another_rank_count(comm, mpi_tmp_path, direction):
             progress=False)
     comm.Barrier()
     if comm.rank == 0:
-        a, b = _last(half), _last(os.path.join(mpi_tmp_path, "whole"))
+        a, b = last_frame(half), last_frame(os.path.join(mpi_tmp_path, "whole"))
         assert np.array_equal(a["id"], b["id"])
         assert np.allclose(a["x"], b["x"], rtol=0, atol=1e-12)
         assert np.allclose(a["rho"], b["rho"], rtol=1e-12)
@@ -127,6 +120,6 @@ def test_physics_restart_is_bit_for_bit(comm, mpi_tmp_path, name, overrides, hal
     run(load_scene(name, overrides + [f"run.end_time={end}"]), whole, comm=comm,
         progress=False)
     if comm.rank == 0:
-        a, b = _last(first), _last(whole)
+        a, b = last_frame(first), last_frame(whole)
         for key in ("id", "x", "v", "p", "eps_p", "porosity"):
             assert np.array_equal(a[key], b[key]), key

@@ -4,17 +4,11 @@ import os
 
 import numpy as np
 import pytest
-from mpi4py import MPI
 
 from parsph.io import read_frame, read_frames
 from parsph.run import run
 from parsph.scene import load_scene
-from tests.scenes import MOVING_2D, MOVING_3D, write
-
-
-def _by_id(frame):
-    order = np.argsort(frame["id"])
-    return {k: v[order] for k, v in frame.items()}
+from tests.scenes import MOVING_2D, MOVING_3D, by_id, last_frame, run_on_one_and_two, write
 
 
 def _shared_scene(comm, path_dir, text, name):
@@ -31,8 +25,8 @@ def test_kinematic_run_moves_and_conserves(comm, mpi_tmp_path, text):
     if comm.rank == 0:
         steps = [s for s, _ in read_frames(os.path.join(out, "particles.h5"))]
         assert steps[0] == 0 and len(steps) == 3
-        first = _by_id(read_frame(os.path.join(out, "particles.h5"), steps[0]))
-        last = _by_id(read_frame(os.path.join(out, "particles.h5"), steps[-1]))
+        first = by_id(read_frame(os.path.join(out, "particles.h5"), steps[0]))
+        last = by_id(read_frame(os.path.join(out, "particles.h5"), steps[-1]))
         assert np.array_equal(first["id"], last["id"])  # no particle lost or duplicated
         # positions moved by v t, wrapped into the periodic box
         moved = first["x"] + scene.run.end_time * first["v"]
@@ -54,14 +48,9 @@ def test_kinematic_run_moves_and_conserves(comm, mpi_tmp_path, text):
 def test_density_on_moving_set_one_vs_two_ranks(comm, mpi_tmp_path, text):
     """The keystone comparison: the same scene on 1 and on 2 ranks, compared by global id."""
     scene = _shared_scene(comm, mpi_tmp_path, text, "scene.toml")
-    one = comm.Split(0 if comm.rank == 0 else MPI.UNDEFINED, comm.rank)
+    one, two = run_on_one_and_two(comm, scene, mpi_tmp_path)
     if comm.rank == 0:
-        run(scene, os.path.join(mpi_tmp_path, "one"), comm=one, progress=False)
-        one.Free()
-    run(scene, os.path.join(mpi_tmp_path, "two"), comm=comm, progress=False)
-    if comm.rank == 0:
-        a = _by_id(read_frame(os.path.join(mpi_tmp_path, "one", "particles.h5"), "last"))
-        b = _by_id(read_frame(os.path.join(mpi_tmp_path, "two", "particles.h5"), "last"))
+        a, b = last_frame(one), last_frame(two)
         assert np.array_equal(a["id"], b["id"])
         assert np.allclose(a["x"], b["x"], rtol=0, atol=1e-12)
         assert np.allclose(a["rho"], b["rho"], rtol=1e-12)

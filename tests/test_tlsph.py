@@ -4,7 +4,6 @@ import os
 
 import numpy as np
 import pytest
-from mpi4py import MPI
 
 from parsph.io import read_frame
 from parsph.neighbours import build_csr
@@ -13,7 +12,7 @@ from parsph.scene import load_scene
 from parsph.solid import kernels
 from parsph.solid.references import csl_distance
 from parsph.solid.stage import TLSPH
-from tests.scenes import write
+from tests.scenes import last_frame, run_on_one_and_two, write
 
 
 def _lattice(dim, n, d, jitter=0.0, seed=1):
@@ -187,20 +186,11 @@ def test_deforming_block_one_vs_two_ranks(comm, mpi_tmp_path):
     """The keystone comparison on a deforming, yielding block touching a wall."""
     path = write(mpi_tmp_path, BLOCK, "block.toml") if comm.rank == 0 else None
     scene = load_scene(comm.bcast(path))
-    one = comm.Split(0 if comm.rank == 0 else MPI.UNDEFINED, comm.rank)
+    one, two = run_on_one_and_two(comm, scene, mpi_tmp_path)
     if comm.rank == 0:
-        run(scene, os.path.join(mpi_tmp_path, "one"), comm=one, progress=False)
-        one.Free()
-    run(scene, os.path.join(mpi_tmp_path, "two"), comm=comm, progress=False)
-    if comm.rank == 0:
-        frames = []
-        for name in ("one", "two"):
-            fr = read_frame(os.path.join(mpi_tmp_path, name, "particles.h5"), "last")
-            order = np.argsort(fr["id"])
-            frames.append({k: v[order] for k, v in fr.items()})
-        a, b = frames
+        a, b = last_frame(one), last_frame(two)
         assert np.array_equal(a["id"], b["id"])
-        start = read_frame(os.path.join(mpi_tmp_path, "one", "particles.h5"), 0)
+        start = read_frame(os.path.join(one, "particles.h5"), 0)
         moved = np.abs(a["x"] - start["x"][np.argsort(start["id"])]).max()
         assert moved > 0.005
         assert np.allclose(a["x"], b["x"], rtol=1e-10, atol=1e-12)

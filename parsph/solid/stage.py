@@ -43,7 +43,7 @@ class TLSPH:
     output_fields = ()
 
     def __init__(self, ctx):
-        p, dim = ctx.particles, ctx.dim
+        p = ctx.particles
         for name in ("F", "tau", "eps_e", "P"):
             p.add_field(name, (3, 3))
         for name in ("L", "Q"):
