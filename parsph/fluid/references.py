@@ -14,8 +14,8 @@ import numpy as np
 from parsph.references import reference
 
 #: Digitised experiments of the dam break (z/a against T = t sqrt(2 g / a)); sources in
-#: tests/data/README.md.
-DATA = os.path.join(os.path.dirname(__file__), "..", "..", "tests", "data")
+#: parsph/scenes/data/README.md.
+DATA = os.path.join(os.path.dirname(__file__), "..", "scenes", "data")
 DAM_BREAK_DATA = ("martin_moyce_1952.csv", "koshizuka_oka_1996.csv")
 
 
@@ -77,7 +77,7 @@ def front_positions(out, a, d, g=9.81):
 
 
 def experiment(fname):
-    """(T, Z) of a digitised experiment in tests/data."""
+    """(T, Z) of a digitised experiment in parsph/scenes/data."""
     return np.loadtxt(os.path.join(DATA, fname), delimiter=",", comments="#", unpack=True)
 
 
