@@ -114,6 +114,22 @@ def density_and_surface(x, m, fluid, rho0, indptr, indices, h, dim, beta, gamma,
                         (acc < rho0[i] and h * math.sqrt(g2) > gamma)) else 0
 
 
+@njit(cache=True, inline="always")
+def fluid_weight_sum(x, fluid, indptr, indices, i, h, dim):
+    """sum_f W(r_if, h) over the fluid neighbours f of a wall particle i (Adami et al. 2012:
+    the normalisation of the wall extrapolations of velocity and pressure)."""
+    wsum = 0.0
+    for p in range(indptr[i], indptr[i + 1]):
+        j = indices[p]
+        if fluid[j]:
+            r2 = 0.0
+            for a in range(dim):
+                e = x[i, a] - x[j, a]
+                r2 += e * e
+            wsum += w(math.sqrt(r2), h, dim)
+    return wsum
+
+
 @njit(cache=True)
 def viscous_triplets(x, v, m, rho, nu, fluid, slip, row, indptr, indices, h, dim, dt, g,
                      morris):
@@ -177,15 +193,7 @@ def viscous_triplets(x, v, m, rho, nu, fluid, slip, row, indptr, indices, h, dim
                         k += 1
         elif not slip[i]:
             # no-slip ghost velocity: v_w + sum_f w_wf v_f = 2 v_wall
-            wsum = 0.0
-            for p in range(indptr[i], indptr[i + 1]):
-                j = indices[p]
-                if fluid[j]:
-                    r2 = 0.0
-                    for a in range(dim):
-                        d = x[i, a] - x[j, a]
-                        r2 += d * d
-                    wsum += w(math.sqrt(r2), h, dim)
+            wsum = fluid_weight_sum(x, fluid, indptr, indices, i, h, dim)
             if wsum > 0.0:
                 for p in range(indptr[i], indptr[i + 1]):
                     j = indices[p]
@@ -298,15 +306,7 @@ def ppe_triplets(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim,
             cols[k] = ri
             vals[k] = 1.0
             k += 1
-            wsum = 0.0
-            for p in range(indptr[i], indptr[i + 1]):
-                j = indices[p]
-                if fluid[j]:
-                    r2 = 0.0
-                    for a in range(dim):
-                        e = x[i, a] - x[j, a]
-                        r2 += e * e
-                    wsum += w(math.sqrt(r2), h, dim)
+            wsum = fluid_weight_sum(x, fluid, indptr, indices, i, h, dim)
             if wsum > 0.0:
                 acc = 0.0
                 for p in range(indptr[i], indptr[i + 1]):
