@@ -395,3 +395,46 @@ def proximity_halo(comm, x_owned, select, radius: float, lo, hi) -> Halo:
         near = np.all((xs >= blo - radius) & (xs <= bhi + radius), axis=1)
         send.append(rows[near])
     return Halo.from_send_lists(comm, send, None, n_owned=len(x))
+
+
+def coupled_halo(comm, x_owned, solid, fluid, radius: float) -> Halo:
+    """Collective: the current-configuration halo of a coupled scene (mixed layout).
+
+    Solid rows are owned by their reference position, the others by their current
+    one (``docs/coupling.md``), so the owned rows of a rank are two compact groups.
+    Rank ``q`` receives every row within ``radius`` of the bounding box of its non-solid
+    rows (fluid and walls: their neighbours of any kind) and every *fluid* row within
+    ``radius`` of the bounding box of its solid rows (the fluid neighbours that make
+    a solid row type II, paper Fig. 2). No copies to self, no periodic images. A
+    negative ``radius`` gives an empty pattern (no fluid anywhere).
+
+    Parameters
+    ----------
+    x_owned : ndarray (n_owned, dim)
+        Current positions (m).
+    solid, fluid : ndarray of bool (n_owned,)
+        Phase of the owned rows.
+    radius : float
+        Reach (m), the kernel support 2h.
+    """
+    x = np.asarray(x_owned, dtype=float)
+    solid = np.asarray(solid, dtype=bool)
+    fluid = np.asarray(fluid, dtype=bool)
+    dim = x.shape[1] if x.ndim == 2 else 0
+
+    def bbox(mask):
+        pts = x[mask]
+        if len(pts) == 0 or radius < 0:
+            return np.full(dim, np.inf), np.full(dim, -np.inf)
+        return pts.min(axis=0), pts.max(axis=0)
+
+    boxes = comm.allgather((bbox(~solid), bbox(solid)))
+    send = []
+    for q, ((alo, ahi), (slo, shi)) in enumerate(boxes):
+        if q == comm.rank or len(x) == 0:
+            send.append(np.zeros(0, dtype=np.int64))
+            continue
+        near = np.all((x >= alo - radius) & (x <= ahi + radius), axis=1)
+        near |= fluid & np.all((x >= slo - radius) & (x <= shi + radius), axis=1)
+        send.append(np.flatnonzero(near))
+    return Halo.from_send_lists(comm, send, None, n_owned=len(x))

@@ -11,7 +11,7 @@ BASE_BYTES = {2: 100 + 4 * 24 + 40, 3: 120 + 4 * 70 + 40}
 #: Extra bytes per particle of each stage (its fields and, for implicit stages, matrices).
 #: iisph: ~90 B of fields; the viscous triplets (dim^2 per neighbour pair, 24 B each), the
 #: CSR copy and the PETSc matrix dominate: ~6 kB in 2D, ~30 kB in 3D at h = 1.2 d.
-STAGE_BYTES = {"kinematics": 0, "density": 8, "iisph": 16000, "tlsph": 1200}
+STAGE_BYTES = {"kinematics": 0, "density": 8, "iisph": 16000, "tlsph": 1200, "coupled": 17200}
 #: A scene may use at most this share of a node's memory.
 MEMORY_SHARE = 0.8
 

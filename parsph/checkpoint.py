@@ -53,7 +53,8 @@ def _open(path, mode, comm):
     return h5py.File(path, mode, **kwargs)
 
 
-def write(path: str, comm, particles, rcb, meta: dict, stage_states: dict, fault=None) -> None:
+def write(path: str, comm, particles, rcb, meta: dict, stage_states: dict, fault=None,
+          rcb_ref=None) -> None:
     """Collective: write a checkpoint atomically (temporary file, then rename).
 
     Parameters
@@ -88,9 +89,12 @@ def write(path: str, comm, particles, rcb, meta: dict, stage_states: dict, fault
             dset = grp.create_dataset(name, shape=(total,) + arr.shape[1:], dtype=arr.dtype)
             if n:
                 dset[offset:offset + n] = arr
-        rgrp = f.create_group("rcb")
-        for key, value in rcb.to_arrays().items():
-            rgrp.create_dataset(key, data=value)
+        for name, part in (("rcb", rcb), ("rcb_ref", rcb_ref)):
+            if part is None:
+                continue
+            rgrp = f.create_group(name)
+            for key, value in part.to_arrays().items():
+                rgrp.create_dataset(key, data=value)
         sgrp = f.create_group("stages")
         for stage, state in sorted(stage_states.items()):
             g = sgrp.create_group(stage)
@@ -162,8 +166,12 @@ def read(path: str, comm, scene) -> Checkpoint:
             stop = total * (comm.rank + 1) // comm.size
         fields = {name: dset[start:stop] for name, dset in f["fields"].items()}
         rcb = RCB.from_arrays({k: v[...] for k, v in f["rcb"].items()}) if same else None
+        rcb_ref = RCB.from_arrays({k: v[...] for k, v in f["rcb_ref"].items()}) \
+            if same and "rcb_ref" in f else None
         states = {s: {k: (v[()] if v.shape == () else v[...]) for k, v in g.items()}
                   for s, g in f["stages"].items()}
     finally:
         f.close()
-    return Checkpoint(fields, rcb, meta, states)
+    ck = Checkpoint(fields, rcb, meta, states)
+    ck.rcb_ref = rcb_ref
+    return ck

@@ -18,7 +18,7 @@ from parsph.errors import NumericalError, ParsphError, Preempted
 
 EXIT_OK, EXIT_BUG, EXIT_INPUT, EXIT_NUMERICAL, EXIT_PREEMPTED = 0, 1, 2, 3, 4
 VERBS = ("run", "check", "scenes", "info", "plot", "study")
-DEFAULT_SCENE = "slope_failure_solid"
+DEFAULT_SCENE = "slope_failure"
 
 
 class _Parser(argparse.ArgumentParser):

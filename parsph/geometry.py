@@ -104,20 +104,25 @@ def _lattice(scene: Scene, item, is_wall: bool) -> _Lattice:
         grid = scene.data[item.top]
         (x0, x1), (y0, y1) = grid.extent
         ztop = grid.z.max()
+        below = item.below
         if math.isfinite(item.bottom):
             zb = item.bottom
         elif item.depth > 0:
-            zb = grid.z.min() - item.depth
+            zb = grid.z.min() - below - item.depth
         else:
             raise SceneError(f"{scene.source}: body '{item.name}': a heightmap body needs "
                              f"'bottom' (z of its base) or 'depth' (thickness below the surface)")
         depth = item.depth
+        # every layer on one grid shares the lattice hanging from the highest point, so
+        # layers under layers meet without gaps or overlaps
+        zb = ztop - math.ceil((ztop - zb) / d - 1e-9) * d
 
         def inside(x):
             top = surface(grid, x[:, 0], x[:, 1])
-            keep = (x[:, 2] <= top) & (x[:, 2] >= zb)
+            keep = (x[:, 2] >= zb) & ((x[:, 2] < top - below) if below > 0 else
+                                      (x[:, 2] <= top))
             if depth > 0:
-                keep &= x[:, 2] >= top - depth
+                keep &= x[:, 2] >= top - below - depth
             return keep
 
         return _Lattice((x0, y0, zb), _counts((x0, y0, zb), (x1, y1, ztop), d), inside)

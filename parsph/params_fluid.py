@@ -36,6 +36,11 @@ class FluidNumerics:
     free_surface_gamma: float = spec(0.25, doc="free surface also where h |sum_j V_j grad W_ij| > "
                                      "gamma (incomplete support; 0.56 on a flat surface, 0.03 one "
                                      "layer below)", gt=0.0)
+    free_surface_min_fluid: int = spec(4, doc="coupled scenes: a fluid particle with fewer "
+                                       "fluid neighbours than this, a solid neighbour and no wall "
+                                       "neighbour is an enclosed pocket (singular PPE rows): its pressure is set "
+                                       "to the mean pressure of its solid neighbours (0 = off)",
+                                       ge=0)
     velocity_floor: float = spec(1.0, doc="v_max of eq. (49) is at least this times "
                                  "sqrt(|g| d) (a fluid at rest still gets a finite step)",
                                  ge=0.0)

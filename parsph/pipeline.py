@@ -45,6 +45,9 @@ STAGES = {
                        "implicit incompressible SPH fluid, eqs. (28)-(41)"),
     "tlsph": StageSpec("tlsph", "parsph.solid.stage", "TLSPH",
                        "total-Lagrangian elastoplastic solid, eqs. (2)-(27)"),
+    "coupled": StageSpec("coupled", "parsph.coupling.stage", "Coupled",
+                         "TLSPH solid + IISPH fluid coupled as FSI (eqs. (42)-(48)), "
+                         "phase change (section 3.3)"),
 }
 
 #: Infrastructure every run has, in step order (printed by `parsph check`).
@@ -58,11 +61,13 @@ INFRASTRUCTURE = (
 def plan(scene) -> list[StageSpec]:
     """The physics stages of one step, in order, for this scene.
 
+    A scene with both solid (TLSPH) and fluid (IISPH) materials gets the one
+    ``coupled`` stage (section 5 and the phase change of section 3.3).
+
     Raises
     ------
     SceneError
-        For a scene with both solid and fluid materials: the solid-fluid coupling and
-        phase change (paper sections 3.3 and 5) are not in this version.
+        For a coupled scene with periodic axes (not supported).
     """
     mode = scene.run.mode
     if mode in ("geometry", "kinematic"):
@@ -74,9 +79,11 @@ def plan(scene) -> list[StageSpec]:
             if stage not in names:
                 names.append(stage)
     if {"tlsph", "iisph"} <= set(names):
-        raise SceneError(f"{scene.source}: the scene has both solid (TLSPH) and fluid (IISPH) "
-                         f"materials; their coupling and the phase change are not in this "
-                         f"version of parsph yet: simulate one phase per scene")
+        if any(scene.domain.periodic):
+            raise SceneError(f"{scene.source}: key 'domain.periodic': periodic axes are not "
+                             f"supported with solid (TLSPH) and fluid (IISPH) materials in one "
+                             f"scene; close the domain with walls")
+        return [STAGES["coupled"]]
     return [STAGES[n] for n in names]
 
 
@@ -87,11 +94,15 @@ def layout(stages) -> str:
     reference positions X and are built once (section 3: the reference configuration is
     fixed). ``"current"``: anything with moving neighbourhoods; ownership follows the
     current positions x and the halo and neighbour lists are rebuilt every step.
+    ``"mixed"``: a coupled scene; solid rows are owned by X (and keep their reference
+    halo and lists inside the coupled stage), the other rows by x (docs/coupling.md).
     """
     names = {s.name for s in stages}
+    if "coupled" in names:
+        return "mixed"
     return "reference" if names == {"tlsph"} else "current"
 
 
 def uses_petsc(stages) -> bool:
     """True if any stage solves an implicit system (the only case that imports solvers)."""
-    return any(s.name == "iisph" for s in stages)
+    return any(s.name in ("iisph", "coupled") for s in stages)

@@ -23,7 +23,7 @@ import numpy as np
 from decomposition import collective, raise_if_any, world
 from decomposition.box import Box
 from decomposition.exchange import migrate
-from decomposition.halo import Halo
+from decomposition.halo import Halo, coupled_halo
 from decomposition.partition import RCB, imbalance
 from decomposition.reduce import global_any, global_max, global_min, global_sum
 from parsph.budget import check_budget
@@ -33,7 +33,7 @@ from parsph.kernel import smoothing_length, support_radius
 from parsph.materials import PHASE_FLUID, PHASE_SOLID, PHASE_WALL
 from parsph.neighbours import build_csr
 from parsph.particles import ParticleSet
-from parsph.pipeline import INFRASTRUCTURE, layout, plan
+from parsph.pipeline import INFRASTRUCTURE, layout, plan, uses_petsc
 
 log = logging.getLogger("parsph")
 
@@ -51,6 +51,7 @@ class Context:
     h: float
     radius: float
     rcb: RCB = None
+    rcb_ref: RCB = None
     halo: Halo = None
     indptr: np.ndarray = None
     indices: np.ndarray = None
@@ -73,6 +74,12 @@ class Context:
         fresh = self.halo.exchange(p.owned_fields(names), shift_fields=("x", "X"))
         for name, rows in fresh.items():
             p[name][p.n_owned:] = rows
+
+    def nearby_walls(self, names, around=None) -> dict:
+        """Collective: the named fields of every wall row near this rank's particles
+        (``around``: bool mask of owned rows, default all), see :meth:`nearby`."""
+        p = self.particles
+        return self.nearby(p["phase"][: p.n_owned] == PHASE_WALL, names, around=around)
 
     def body_acceleration(self, t: float) -> np.ndarray:
         """g − s a_ground(t − t_0) (m/s²): gravity and the earthquake record, section 6.3.
@@ -170,8 +177,17 @@ def _distribute(ctx, force: bool = False) -> None:
     owned = p.owned_fields()
     if ctx.box.periodic and any(ctx.box.periodic):
         owned["x"] = ctx.box.wrap(owned["x"])
-    if force or ctx.rcb is None or \
-            imbalance(comm, p.n_owned) > ctx.scene.run.rebalance_tolerance:
+    tolerance = ctx.scene.run.rebalance_tolerance
+    if ctx.layout == "mixed":  # solids by X (fixed), the other rows by x
+        solid = owned["phase"] == PHASE_SOLID
+        if force or ctx.rcb_ref is None:
+            ctx.rcb_ref = RCB.build(comm, owned["X"][solid], ctx.box)
+        if force or ctx.rcb is None or imbalance(comm, int((~solid).sum())) > tolerance:
+            ctx.rcb = RCB.build(comm, owned["x"][~solid], ctx.box)
+        dest = np.where(solid, ctx.rcb_ref.owner(owned["X"]), ctx.rcb.owner(owned["x"]))
+        p.set_owned(migrate(comm, owned, dest))
+        return
+    if force or ctx.rcb is None or imbalance(comm, p.n_owned) > tolerance:
         ctx.rcb = RCB.build(comm, owned[key], ctx.box)
     p.set_owned(migrate(comm, owned, ctx.rcb.owner(owned[key])))
 
@@ -187,14 +203,29 @@ def refresh(ctx, force_partition: bool = False) -> None:
     _timed(ctx, "migrate", _distribute, ctx, force_partition)
     p, key = ctx.particles, ctx.key
 
+    # mixed layout: current-configuration halo and lists only while there is fluid
+    # (the solid's reference halo and lists live in the coupled stage)
+    current = ctx.layout != "mixed" or global_any(
+        ctx.comm, bool((p["phase"][: p.n_owned] == PHASE_FLUID).any()))
+
     def halo():
-        ctx.halo = Halo.build(ctx.comm, ctx.rcb, p[key][: p.n_owned], ctx.radius, ctx.box)
+        if ctx.layout == "mixed":
+            n = p.n_owned
+            phase = p["phase"][:n]
+            ctx.halo = coupled_halo(ctx.comm, p["x"][:n], phase == PHASE_SOLID,
+                                    phase == PHASE_FLUID, ctx.radius if current else -1.0)
+        else:
+            ctx.halo = Halo.build(ctx.comm, ctx.rcb, p[key][: p.n_owned], ctx.radius, ctx.box)
         p.set_halo(ctx.halo.exchange(p.owned_fields(), shift_fields=("x", "X")))
 
     _timed(ctx, "halo", halo)
 
     def neighbours():
-        ctx.indptr, ctx.indices = build_csr(p[key], p.n_owned, ctx.radius)
+        if current:
+            ctx.indptr, ctx.indices = build_csr(p[key], p.n_owned, ctx.radius)
+        else:
+            ctx.indptr = np.zeros(p.n_owned + 1, dtype=np.int64)
+            ctx.indices = np.zeros(0, dtype=np.int64)
 
     _timed(ctx, "neighbours", neighbours)
 
@@ -218,14 +249,20 @@ def _stats_row(ctx, dt, stage_objs) -> dict:
     counts = np.array([n, (phase == PHASE_SOLID).sum(), (phase == PHASE_FLUID).sum(),
                        (phase == PHASE_WALL).sum()], dtype=np.float64)
     v = p["v"][:n]
-    ke = 0.5 * float((p["m"][:n] * (v * v).sum(axis=1))[phase != PHASE_WALL].sum())
+    moving = phase != PHASE_WALL
+    speed2 = (v * v).sum(axis=1)[moving]
+    ke = 0.5 * float((p["m"][:n][moving] * speed2).sum())
+    e = np.asarray(ctx.scene.output.front_direction or (1.0,) + (0.0,) * (ctx.dim - 1), float)
+    along = p["x"][:n][moving] @ (e / np.linalg.norm(e))
     counts = global_sum(comm, counts)
     ke = global_sum(comm, ke)
     n_max, n_min = global_max(comm, n), global_min(comm, n)
+    front = global_max(comm, float(along.max()) if len(along) else -math.inf)
+    vmax = math.sqrt(global_max(comm, float(speed2.max()) if len(speed2) else 0.0))
     row = {"step": ctx.step, "time": ctx.time, "dt": dt,
            "n_particles": int(counts[0]), "n_solid": int(counts[1]), "n_fluid": int(counts[2]),
            "n_wall": int(counts[3]), "n_owned_min": n_min, "n_owned_max": n_max,
-           "kinetic_energy": ke}
+           "kinetic_energy": ke, "max_speed": vmax, "front": front}
     for s in stage_objs:
         row.update(s.stats())
     for name, seconds in ctx.timers.items():
@@ -236,7 +273,7 @@ def _stats_row(ctx, dt, stage_objs) -> dict:
 def stats_columns(stages) -> list[str]:
     """stats.csv columns: counts, energy, each stage's own columns, wall seconds per stage."""
     cols = ["step", "time", "dt", "n_particles", "n_solid", "n_fluid", "n_wall",
-            "n_owned_min", "n_owned_max", "kinetic_energy"]
+            "n_owned_min", "n_owned_max", "kinetic_energy", "max_speed", "front"]
     cols += [c for s in stages for c in getattr(s, "stats_columns", ())]
     cols += [f"wall_s_{name}" for name, _ in INFRASTRUCTURE]
     cols += [f"wall_s_{s.name}" for s in stages] + ["wall_s_output"]
@@ -301,7 +338,8 @@ def _build(scene, out, comm, petsc_args, restart):
     if ck is not None:
         ctx.time, ctx.step = float(ck.meta["time"]), int(ck.meta["step"])
         ctx.rcb = ck.rcb  # None at another rank count: re-partitioned below
-    if any(s.name == "iisph" for s in specs):  # only then is petsc4py imported
+        ctx.rcb_ref = ck.rcb_ref  # mixed layout: the solids' partition (fixed by X)
+    if uses_petsc(specs):  # only then is petsc4py imported
         import solvers
 
         solvers.init(list(petsc_args))
@@ -362,9 +400,12 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
     if ck is None:
         frame_index, last_frame_step, next_ck = 1, 0, ck_every
     else:
-        frame_index = int(ck.meta["frame_index"])
+        # from the time, not the saved counters: output.every and checkpoint_every may
+        # differ in the restarted run
+        frame_index = int(math.floor(ctx.time / every + 1e-9)) + 1
         last_frame_step = int(ck.meta["last_frame_step"])
-        next_ck = float(ck.meta["next_checkpoint"])
+        next_ck = (math.floor(ctx.time / ck_every + 1e-9) + 1) * ck_every if ck_every > 0 \
+            else float(ck.meta["next_checkpoint"])
 
     def write_frame():
         t0 = time.perf_counter()
@@ -378,7 +419,7 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
                 "last_frame_step": last_frame_step, "next_checkpoint": next_ck}
         states = {s.name: s.state() for s in stages if hasattr(s, "state")}
         checkpoint.write(ck_path, comm, particles, ctx.rcb, meta, states,
-                         fault=faults.checkpoint_fault(ctx.step))
+                         fault=faults.checkpoint_fault(ctx.step), rcb_ref=ctx.rcb_ref)
 
     show = scene.output.progress if progress is None else progress
     bar = Progress(end, enabled=show and comm.rank == 0)

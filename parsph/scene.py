@@ -60,6 +60,10 @@ class Output:
     checkpoint_every: float = spec(0.0, doc="simulated seconds between checkpoints (0 = at end)",
                                    ge=0.0)
     progress: bool = spec(True, doc="progress bar on rank 0")
+    front_direction: tuple[float, ...] = spec((), doc="direction (any length) along which "
+                                              "stats.csv's front (the farthest solid or fluid "
+                                              "particle, m) is measured: the run-out direction; "
+                                              "default +x")
 
 
 @dataclass(frozen=True)
@@ -73,6 +77,16 @@ class Loading:
                        "(see docs/loading.md); empty = none")
     scale: float = spec(1.0, doc="factor on the record's accelerations")
     start_time: float = spec(0.0, doc="simulated time (s) at which the record starts", ge=0.0)
+
+
+@dataclass(frozen=True)
+class PhaseChange:
+    eps_p_limit: float = spec(0.0, doc="equivalent plastic strain eps_p past which a solid "
+                              "particle becomes fluid (section 3.3); 0 = never", ge=0.0)
+    fluid: str = spec("", doc="the [materials] key (a fluid model) fluidised particles take")
+    min_support: float = spec(0.4, doc="a solid particle left with fewer than this share of its "
+                              "initial reference neighbours (its neighbours fluidised) becomes "
+                              "fluid too: a fragment too thin for TLSPH", ge=0.0, le=1.0)
 
 
 @dataclass(frozen=True)
@@ -90,6 +104,8 @@ class Body:
     bottom: float = spec(-math.inf, doc="heightmap: z of the bottom (m)")
     depth: float = spec(0.0, doc="heightmap: thickness below the top surface (m), 0 = to bottom",
                         ge=0.0)
+    below: float = spec(0.0, doc="heightmap: the body starts this far below the surface (m): "
+                        "layers under layers (a layer = below .. below + depth)", ge=0.0)
     velocity: tuple[float, ...] = spec((), doc="initial velocity (m/s)")
 
 
@@ -118,6 +134,7 @@ class Scene:
     loading: Loading = field(default_factory=Loading)
     solid: SolidNumerics = field(default_factory=SolidNumerics)
     fluid: FluidNumerics = field(default_factory=FluidNumerics)
+    phase_change: PhaseChange = field(default_factory=PhaseChange)
     bodies: tuple[Body, ...] = spec((), doc="[[bodies]] tables")
     walls: tuple[Wall, ...] = spec((), doc="[[walls]] tables")
     constraints: tuple[Constraint, ...] = spec((), doc="[[constraints]] tables (TLSPH solid)")
@@ -293,6 +310,10 @@ def _cross_check(scn: Scene, source: str) -> None:
                  f"(known: {known})")
         _check_vec(source, f"{key}.velocity", body.velocity, dim, required=False)
         _check_shape(source, key, body.shape, body, dim, lo, hi)
+    _check_phase_change(scn, source)
+    _check_vec(source, "output.front_direction", scn.output.front_direction, dim, required=False)
+    if scn.output.front_direction and not any(scn.output.front_direction):
+        _err(source, "output.front_direction", "must not be the zero vector")
     for i, wall in enumerate(scn.walls):
         key = f"walls[{i}]"
         if wall.name in names:
@@ -306,6 +327,27 @@ def _cross_check(scn: Scene, source: str) -> None:
             if bad:
                 _err(source, f"{key}.sides", f"unknown side {bad[0]!r}; in {dim}D the sides are "
                      f"{', '.join(SIDES[dim])}")
+
+
+def _check_phase_change(scn: Scene, source: str) -> None:
+    """[phase_change]: a fluid material to become, and a solid to leave (section 3.3)."""
+    pc = scn.phase_change
+    if pc.eps_p_limit == 0.0 and not pc.fluid:
+        return
+    fluids = sorted(k for k, m in scn.materials.items() if "iisph" in m.stages)
+    solids = [k for k, m in scn.materials.items() if "tlsph" in m.stages]
+    if pc.fluid not in scn.materials:
+        _err(source, "phase_change.fluid", f"names no material: '{pc.fluid}' is not a key of "
+             f"[materials] (fluid materials: {', '.join(fluids) or 'none defined'})")
+    if pc.fluid not in fluids:
+        _err(source, "phase_change.fluid", f"material '{pc.fluid}' is not a fluid model; "
+             f"name a newtonian or bingham material ({', '.join(fluids) or 'none defined'})")
+    if pc.eps_p_limit > 0.0 and not solids:
+        _err(source, "phase_change.eps_p_limit", "the scene has no solid (TLSPH) material "
+             "whose particles could change phase")
+    if any(scn.domain.periodic):
+        _err(source, "domain.periodic", "periodic axes are not supported with solid-fluid "
+             "coupling and phase change; close the domain with walls")
 
 
 def _check_shape(source, key, shape, item, dim, lo, hi):

@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # The main job: set-up if needed, then the built-in default scene (the slope failure of the
-# paper's Table 2, TLSPH solid) on 2 ranks; output in out/demo (particles.h5, particles.xdmf,
+# paper's Table 2 with phase change: TLSPH soil turning into IISPH Bingham fluid) on 2 ranks;
+# output in out/demo (particles.h5, particles.xdmf,
 # stats.csv, checkpoint.h5) and pictures of the first and last frames (out/demo/plots/*.png).
 set -euo pipefail
 cd "$(dirname "$0")/.."

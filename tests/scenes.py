@@ -124,8 +124,13 @@ def run_on_one_and_two(comm, scene, tmpdir):
 
     from mpi4py import MPI
 
+    from parsph.pipeline import plan, uses_petsc
     from parsph.run import run
 
+    if uses_petsc(plan(scene)):  # PetscInitialize is collective on the world: all ranks now
+        import solvers
+
+        solvers.init([])
     one_dir, two_dir = os.path.join(tmpdir, "one"), os.path.join(tmpdir, "two")
     one = comm.Split(0 if comm.rank == 0 else MPI.UNDEFINED, comm.rank)
     if comm.rank == 0:

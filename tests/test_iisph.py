@@ -48,7 +48,8 @@ def test_ppe_matrix_is_eq35_with_wall_extrapolation():
     vs[0] = [0.01, 0.0]  # v* of particle 0 only: divergence source of row 1
     g = np.array([0.0, -9.81])
     rows, cols, vals, rhs = assembly.ppe_triplets(x, vs, m, rho, rho0, fluid, free, row, indptr,
-                                                  indices, h, 2, dt, alpha, d, g)
+                                                  indices, h, 2, dt, alpha, d, g,
+                                                  np.zeros((4, 2)), np.zeros(4))
     A = np.zeros((4, 4))
     np.add.at(A, (rows, cols), vals)
     for i in (0, 1):  # fluid rows: -s_i * eq. (35), s_i = rho_i d^2 / (2 rho0_i)
@@ -83,7 +84,8 @@ def test_viscous_predictor_is_eq34(morris):
     v = np.array([[0.1, 0.0], [0.0, 0.2], [0.0, 0.0], [0.0, 0.0]])
     slip = np.zeros(4, dtype=np.uint8)
     g = np.array([0.0, -9.81])
-    rows, cols, vals, rhs = assembly.viscous_triplets(x, v, m, rho, nu, fluid, slip, row,
+    solid = np.zeros(4)
+    rows, cols, vals, rhs = assembly.viscous_triplets(x, v, m, rho, nu, fluid, solid, slip, row,
                                                       indptr, indices, h, dim, dt, g, morris)
     A = np.zeros((8, 8))
     np.add.at(A, (rows, cols), vals)

@@ -105,6 +105,8 @@ PHYSICS = [
     ("slope_failure_solid", ["domain.particle_size=0.1", "output.every=0.05"], 0.05, 0.1),
     ("hydrostatic", ["domain.particle_size=0.05", "output.every=0.05"], 0.05, 0.1),
     ("dam_break", ["domain.particle_size=0.0146", "output.every=0.02"], 0.02, 0.04),
+    # coupled, restarted after the phase change started (to round-off, see below)
+    ("slope_failure", ["output.every=0.05"], 0.3, 0.35),
 ]
 
 
@@ -121,5 +123,25 @@ def test_physics_restart_is_bit_for_bit(comm, mpi_tmp_path, name, overrides, hal
         progress=False)
     if comm.rank == 0:
         a, b = last_frame(first), last_frame(whole)
+        # coupled: the restart rebuilds the solid view and the PETSc systems (round-off)
+        tol = {"x": 1e-9, "v": 1e-7, "p": 1e-3, "eps_p": 1e-7} if name == "slope_failure" \
+            else {}
         for key in ("id", "x", "v", "p", "eps_p", "porosity"):
-            assert np.array_equal(a[key], b[key]), key
+            if key in tol:
+                assert np.abs(a[key] - b[key]).max() <= tol[key], key
+            else:
+                assert np.array_equal(a[key], b[key]), key
+
+
+def test_restart_with_another_frame_interval(comm, mpi_tmp_path):
+    """output.every may change at a restart: the next frame follows the new interval."""
+    out = os.path.join(mpi_tmp_path, "out")
+    run(_scene(comm, mpi_tmp_path, ["run.end_time=0.25", "output.every=0.1"]), out, comm=comm,
+        progress=False)
+    run(_scene(comm, mpi_tmp_path, ["run.end_time=0.3", "output.every=0.02"]), out, comm=comm,
+        progress=False, restart=os.path.join(out, "checkpoint.h5"))
+    if comm.rank == 0:
+        from parsph.io import read_frames
+
+        times = [t for _, t in read_frames(os.path.join(out, "particles.h5"))]
+        assert times == pytest.approx([0.0, 0.1, 0.2, 0.25, 0.26, 0.28, 0.3])

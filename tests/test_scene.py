@@ -121,8 +121,10 @@ def test_scene_key_reference_is_current():
         assert fh.read() == markdown(), "regenerate: python -m parsph.scenedoc > docs/scenes.md"
 
 
-def test_scene_with_solid_and_fluid_is_refused_until_coupling(tmp_path):
-    from parsph.pipeline import plan
+def test_scene_with_solid_and_fluid_is_coupled(tmp_path):
+    """Both phases in one scene: the coupled stage in the mixed layout; periodic axes
+    and a bad [phase_change] are refused with the key named."""
+    from parsph.pipeline import layout, plan
     from parsph.scene import builtin_path
 
     text = open(builtin_path("hydrostatic")).read() + """
@@ -140,5 +142,16 @@ lo = [0.4, 1.0]
 hi = [0.6, 1.1]
 """
     scene = load_scene(write(tmp_path, text))
-    with pytest.raises(SceneError, match="both solid .* and fluid"):
-        plan(scene)
+    specs = plan(scene)
+    assert [s.name for s in specs] == ["coupled"] and layout(specs) == "mixed"
+    with pytest.raises(SceneError, match="domain.periodic"):
+        load_scene(write(tmp_path, text + '\n[phase_change]\neps_p_limit = 0.5\nfluid = "water"\n'),
+                   ["domain.periodic=[true, false]"])
+    with pytest.raises(SceneError, match="phase_change.fluid.*no material"):
+        load_scene(write(tmp_path, text + '\n[phase_change]\neps_p_limit = 0.5\nfluid = "mud"\n'))
+    with pytest.raises(SceneError, match="phase_change.fluid.*not a fluid"):
+        load_scene(write(tmp_path, text + '\n[phase_change]\neps_p_limit = 0.5\nfluid = "soil"\n'))
+    with pytest.raises(SceneError, match="phase_change.eps_p_limit"):
+        load_scene(write(tmp_path, text), ["phase_change.eps_p_limit=-1"])
+    with pytest.raises(SceneError, match="output.front_direction"):
+        load_scene(write(tmp_path, text), ["output.front_direction=[0.0, 0.0]"])

@@ -54,7 +54,8 @@ from numba import njit
 from parsph.kernel import fac_grad, normalisation, w
 
 __all__ = ["density_and_surface", "viscous_triplets", "ppe_triplets", "divergence",
-           "pressure_gradient", "pressure_gradient_corrected", "ppe_row_scale"]
+           "pressure_gradient", "pressure_gradient_corrected", "ppe_row_scale",
+           "coupling_pressure_acceleration", "has_fluid_neighbour"]
 
 #: eta^2 / h^2 of the viscous term (avoids 1/r^2 blowing up for coincident particles).
 ETA2 = 0.01
@@ -71,7 +72,8 @@ def ppe_row_scale(rho, rho0, d):
 
 
 @njit(cache=True)
-def density_and_surface(x, m, fluid, rho0, indptr, indices, h, dim, beta, gamma, rho, free):
+def density_and_surface(x, m, fluid, rho0, indptr, indices, h, dim, beta, gamma, rho, free,
+                        min_fluid, solid, p, pin):
     r"""Summation density (33) of the owned fluid rows and the free-surface flag.
 
     ``rho[i]`` of boundary rows is left as given (their rest density). A fluid row is on
@@ -85,6 +87,16 @@ def density_and_surface(x, m, fluid, rho0, indptr, indices, h, dim, beta, gamma,
     the support beyond a wall), so a particle by a wall is not flagged, while one at a
     wall corner above the water is, through the second test, even if the wall particles
     above the water raise its density.
+
+    A fluid row with a full support (the gradient test above passes), fewer than
+    ``min_fluid`` fluid neighbours, at least one solid neighbour (``solid[j] > 0``) and no
+    wall neighbour is a pocket enclosed by solid rows
+    that extrapolate their pressure from it (Adami et al. 2012): its PPE row would not
+    depend on its pressure (singular). It gets a Dirichlet row instead, ``p_i = pin[i]``
+    = the mean pressure ``p`` of its solid neighbours (the soil's, clamped at 0): a
+    particle that fluidised inside the soil carries the soil's mean stress. Next to a
+    wall the PPE row is kept: it is what holds the particle off the wall. ``pin`` is 0
+    elsewhere.
     """
     n = indptr.shape[0] - 1
     w0 = normalisation(h, dim)
@@ -95,8 +107,19 @@ def density_and_surface(x, m, fluid, rho0, indptr, indices, h, dim, beta, gamma,
             continue
         acc = m[i] * w0
         gs[:] = 0.0
-        for p in range(indptr[i], indptr[i + 1]):
-            j = indices[p]
+        nf = 0
+        ns = 0
+        nw = 0
+        ps = 0.0
+        pin[i] = 0.0
+        for q in range(indptr[i], indptr[i + 1]):
+            j = indices[q]
+            nf += fluid[j]
+            if solid[j] > 0.0:
+                ns += 1
+                ps += p[j]
+            elif not fluid[j]:
+                nw += 1
             r2 = 0.0
             for a in range(dim):
                 d = x[i, a] - x[j, a]
@@ -112,6 +135,10 @@ def density_and_surface(x, m, fluid, rho0, indptr, indices, h, dim, beta, gamma,
             g2 += gs[a] * gs[a]
         free[i] = 1 if (acc < beta * rho0[i] or
                         (acc < rho0[i] and h * math.sqrt(g2) > gamma)) else 0
+        if nf < min_fluid and ns > 0 and nw == 0 and h * math.sqrt(g2) <= gamma:
+            # a pocket inside the soil (full support, few fluid neighbours): its pressure
+            free[i] = 1
+            pin[i] = max(ps / ns, 0.0)
 
 
 @njit(cache=True, inline="always")
@@ -131,8 +158,8 @@ def fluid_weight_sum(x, fluid, indptr, indices, i, h, dim):
 
 
 @njit(cache=True)
-def viscous_triplets(x, v, m, rho, nu, fluid, slip, row, indptr, indices, h, dim, dt, g,
-                     morris):
+def viscous_triplets(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, dim, dt,
+                     g, morris):
     """Triplets and right-hand side of the implicit viscous predictor (30)/(34).
 
     Returns ``(rows, cols, vals, rhs)`` with global scalar indices (block size ``dim``)
@@ -140,6 +167,15 @@ def viscous_triplets(x, v, m, rho, nu, fluid, slip, row, indptr, indices, h, dim
     ``morris`` the operator is Morris et al. (1997) instead of eq. (34):
     ``sum_j m_j (rho_i nu_i + rho_j nu_j) / (rho_i rho_j) F_ij r^2 / (r^2 + eta^2) v_ij``
     (component-wise; accurate in shear on a lattice with h = 1.2 d, see docs/iisph.md).
+
+    Coupling (section 5, eq. (47)): a row with ``solid[i] > 0`` is a TLSPH particle
+    with fluid neighbours (type II); its unknown is its own velocity, its right-hand
+    side ``v[i]`` is the solid predictor of eq. (7) (the caller passes it), and it
+    couples to its fluid neighbours only, with the pair coefficient the fluid row sees
+    (pair viscosity ``2 nu_f``) times ``solid[i]`` = (mass the fluid sees) / (true mass),
+    so the viscous forces between the phases are equal and opposite. Fluid rows see solid neighbours as no-slip walls whose velocity is
+    the solid's own unknown (eq. (43)). Rows with ``row[i] < 0`` (type I solids, walls
+    without fluid neighbours) are not in the system.
     """
     n = indptr.shape[0] - 1
     npairs = indptr[n]
@@ -153,26 +189,29 @@ def viscous_triplets(x, v, m, rho, nu, fluid, slip, row, indptr, indices, h, dim
     r = np.empty(dim)
     k = 0
     for i in range(n):
+        if row[i] < 0:
+            continue
         ri = row[i] * dim
         diag[:, :] = 0.0
         for a in range(dim):
             diag[a, a] = 1.0
-        if fluid[i]:
+        if fluid[i] or solid[i] > 0.0:
             for a in range(dim):
-                rhs[i, a] = v[i, a] + dt * g[a]
+                rhs[i, a] = v[i, a] + dt * g[a] if fluid[i] else v[i, a]
             for p in range(indptr[i], indptr[i + 1]):
                 j = indices[p]
-                if not fluid[j] and slip[j]:
+                if row[j] < 0 or (not fluid[j] and (slip[j] or solid[i] > 0.0)):
                     continue
                 r2 = 0.0
                 for a in range(dim):
                     r[a] = x[i, a] - x[j, a]
                     r2 += r[a] * r[a]
-                nuj = nu[j] if fluid[j] else nu[i]
-                f = fac_grad(math.sqrt(r2), h, dim)
+                nui = nu[i] if fluid[i] else nu[j]
+                nuj = nu[j] if fluid[j] else nui
+                f = fac_grad(math.sqrt(r2), h, dim) * (1.0 if fluid[i] else solid[i])
                 rj = row[j] * dim
                 if morris:
-                    c = dt * m[j] * (rho[i] * nu[i] + rho[j] * nuj) / (rho[i] * rho[j]) * f \
+                    c = dt * m[j] * (rho[i] * nui + rho[j] * nuj) / (rho[i] * rho[j]) * f \
                         * r2 / (r2 + eta2)
                     for a in range(dim):
                         diag[a, a] -= c
@@ -181,7 +220,7 @@ def viscous_triplets(x, v, m, rho, nu, fluid, slip, row, indptr, indices, h, dim
                         vals[k] = c
                         k += 1
                     continue
-                kk = m[j] * 2.0 * (dim + 2) * (nu[i] + nuj) / ((rho[i] + rho[j]) * (r2 + eta2))
+                kk = m[j] * 2.0 * (dim + 2) * (nui + nuj) / ((rho[i] + rho[j]) * (r2 + eta2))
                 c = dt * kk * f  # <= 0
                 for a in range(dim):
                     for b in range(dim):
@@ -229,11 +268,15 @@ def viscous_triplets(x, v, m, rho, nu, fluid, slip, row, indptr, indices, h, dim
 
 @njit(cache=True)
 def ppe_triplets(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt, alpha,
-                 d, ga, corrected=False, expansion=False):
+                 d, ga, acc_w, pin, corrected=False, expansion=False):
     r"""Triplets and right-hand side of the stabilised PPE (32) with (35), (36) and walls.
 
     ``vs`` is the predicted velocity v* of all rows (boundary rows: their own velocity
-    plus ``dt g``, see ``docs/iisph.md``); ``ga`` is ``g - a_w`` (m/s^2) of the walls.
+    plus ``dt g``, see ``docs/iisph.md``; type-II solid rows: their predictor
+    velocity); ``ga`` is ``g`` (m/s^2) and ``acc_w[i]`` the acceleration of boundary row
+    ``i`` (zero for the fixed walls, the solid's predicted acceleration for a type-II
+    solid row, eq. (43)), so that the extrapolation uses ``g - a_w``. Rows with
+    ``row[i] < 0`` are not in the system.
     With ``corrected`` the Laplacian (35) of a fluid row gets the first-order correction
     :math:`- 2\,\mathbf{e}_i\cdot\mathbf{L}_i \sum_j V_j (p_j - p_i) \nabla W_{ij}`,
     :math:`\mathbf{e}_i = \sum_j (m_j/\rho_i) \nabla W_{ij}` (zero for a full support),
@@ -254,6 +297,8 @@ def ppe_triplets(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim,
     k = 0
     for i in range(n):
         ri = row[i]
+        if ri < 0:
+            continue
         if fluid[i] and not free[i]:
             s = rho[i] * d * d / (2.0 * rho0[i])
             div = 0.0
@@ -296,10 +341,11 @@ def ppe_triplets(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim,
             cols[k] = ri
             vals[k] = diag
             k += 1
-        elif fluid[i]:
+        elif fluid[i]:  # free surface: p = 0; an enclosed pocket: p = pin
             rows[k] = ri
             cols[k] = ri
             vals[k] = 1.0
+            rhs[i] = pin[i]
             k += 1
         else:
             rows[k] = ri
@@ -317,7 +363,7 @@ def ppe_triplets(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim,
                         for a in range(dim):
                             e = x[i, a] - x[j, a]
                             r2 += e * e
-                            gr += ga[a] * e
+                            gr += (ga[a] - acc_w[i, a]) * e
                         wij = w(math.sqrt(r2), h, dim) / wsum
                         rows[k] = ri
                         cols[k] = row[j]
@@ -434,6 +480,57 @@ def pressure_gradient(x, p, m, rho, fluid, indptr, indices, h, dim):
             c = rho[i] * m[j] * (pi + p[j] / (rho[j] * rho[j])) * fac_grad(math.sqrt(r2), h, dim)
             for a in range(dim):
                 out[i, a] += c * (x[i, a] - x[j, a])
+    return out
+
+
+@njit(cache=True)
+def coupling_pressure_acceleration(x, p, m, rho, rho0, fluid, solid, indptr, indices, h, dim):
+    r"""Pressure part of the fluid-to-solid force, eq. (45), per unit mass (m/s^2).
+
+    For an owned row with ``solid[i] > 0`` (type II; the value is the ratio of the mass
+    the fluid sees, ``m[i]``, to the true mass), the exact reaction of what its fluid
+    neighbours feel from it through the symmetric gradient (37) and the corrector (31)
+    (:math:`\mathbf{a}_f = -\langle\nabla p\rangle_f / \rho_{0f}`):
+
+    .. math::
+
+        \mathbf{a}_i = -s_i \sum_{f \in \text{fluid}} m_f \frac{\rho_f}{\rho_{0f}}
+        \left(\frac{p_i}{\rho_i^2} + \frac{p_f}{\rho_f^2}\right) \nabla W_{if},
+
+    so that :math:`m_i \mathbf{a}_i = -\sum_f m_f \mathbf{a}_{f \leftarrow i}`: the
+    pressure forces between the phases conserve momentum. Zero for other rows.
+    """
+    n = indptr.shape[0] - 1
+    out = np.zeros((n, dim))
+    for i in range(n):
+        if solid[i] <= 0.0:
+            continue
+        pi = p[i] / (rho[i] * rho[i])
+        for q in range(indptr[i], indptr[i + 1]):
+            j = indices[q]
+            if not fluid[j]:
+                continue
+            r2 = 0.0
+            for a in range(dim):
+                e = x[i, a] - x[j, a]
+                r2 += e * e
+            c = solid[i] * m[j] * rho[j] / rho0[j] * (pi + p[j] / (rho[j] * rho[j])) \
+                * fac_grad(math.sqrt(r2), h, dim)
+            for a in range(dim):
+                out[i, a] -= c * (x[i, a] - x[j, a])
+    return out
+
+
+@njit(cache=True)
+def has_fluid_neighbour(fluid, indptr, indices):
+    """1 for the owned rows with at least one fluid neighbour (uint8)."""
+    n = indptr.shape[0] - 1
+    out = np.zeros(n, dtype=np.uint8)
+    for i in range(n):
+        for q in range(indptr[i], indptr[i + 1]):
+            if fluid[indices[q]]:
+                out[i] = 1
+                break
     return out
 
 

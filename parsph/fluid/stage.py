@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -32,7 +33,7 @@ from solvers.csr import coo_to_csr, sort_neighbours_by_row
 
 STATS = ("visc_iterations", "visc_residual", "ppe_iterations", "ppe_residual",
          "n_free_surface", "max_divergence", "wall_s_fluid_assembly", "wall_s_fluid_solve",
-         "wall_s_fluid_halo")
+         "wall_s_visc_solve", "wall_s_ppe_solve", "wall_s_fluid_halo")
 
 
 def lattice_density_ratio(h_over_d: float, dim: int) -> float:
@@ -50,6 +51,24 @@ def lattice_density_ratio(h_over_d: float, dim: int) -> float:
     k = np.arange(-reach, reach + 1)
     grid = np.stack(np.meshgrid(*([k] * dim)), axis=-1).reshape(-1, dim)
     return float(w_array(np.linalg.norm(grid, axis=1), h_over_d, dim).sum())
+
+
+@dataclass
+class Coupling:
+    """What a coupled step (section 5) hands the fluid step.
+
+    ``acc``: predicted acceleration ``(v_pred - v) / dt`` of the owned rows (m/s^2, zero
+    but for solids), used in the wall-pressure extrapolation of the solid rows (eq. 43);
+    ``mass``: the mass of every row (owned and halo) as the fluid sees it — a solid
+    particle of volume V counts as V rho_f (fixed wall ghost particles of the fluid's
+    density, Adami et al. 2012), so the fluid's summation density, Laplacian and
+    divergence do not see the solid's density; ``scale``: 0 for non-solid rows, the ratio
+    ``mass / m`` for solid rows (the reaction on the solid's true mass).
+    """
+
+    acc: np.ndarray
+    mass: np.ndarray
+    scale: np.ndarray
 
 
 class IISPH:
@@ -106,9 +125,8 @@ class IISPH:
 
     # -- systems ------------------------------------------------------------------
 
-    def _systems(self, ctx):
-        """The two linear systems for this step's owned count (collective)."""
-        n = ctx.n_owned
+    def _systems(self, ctx, n):
+        """The two linear systems for ``n`` rows on this rank (collective)."""
         if global_any(ctx.comm, n != self._n_rows) or self._ppe is None:
             from solvers import LinearSystem
 
@@ -164,34 +182,53 @@ class IISPH:
         ctx.update_halo(names)
         self._t_halo += time.perf_counter() - t0
 
-    def step(self, ctx, dt) -> None:
-        """Advance the owned fluid particles from t to t + dt (eqs. (30)-(37))."""
+    def step(self, ctx, dt, coupling=None) -> None:
+        """Advance the owned fluid particles from t to t + dt (eqs. (30)-(37)).
+
+        Coupled scenes (section 5) pass ``coupling`` (:class:`Coupling`), the solid rows'
+        ``v`` (owned and halo) holding their TLSPH predictor of eq. (7). Solid rows with a
+        fluid neighbour (type II) then take part in both systems (eqs. (47)-(48)) and on
+        return hold :math:`\mathbf{v}^{\beta+1}` in ``v``; type-I rows are left out.
+        """
         p = ctx.particles
         n, dim, h, d = ctx.n_owned, ctx.dim, ctx.h, ctx.d
         self._t_halo = 0.0
-        ppe, visc = self._systems(ctx)
-        offset, _ = global_offset(ctx.comm, n)
-        p["fluid_row"][:n] = offset + np.arange(n, dtype=np.int64)
+        t0 = time.perf_counter()
+        fluid = (p["phase"] == PHASE_FLUID).astype(np.uint8)
+        coupled = coupling is not None
+        solid = coupling.scale if coupled else np.zeros(len(fluid))
+        solid_acc = coupling.acc if coupled else None
+        # rows of the systems: fluid rows and boundary rows with a fluid neighbour
+        act = (fluid[:n] | assembly.has_fluid_neighbour(fluid, ctx.indptr, ctx.indices)) == 1
+        n_act = int(act.sum())
+        ppe, visc = self._systems(ctx, n_act)
+        offset, _ = global_offset(ctx.comm, n_act)
+        row = p["fluid_row"]
+        row[:n] = -1
+        row[:n][act] = offset + np.arange(n_act, dtype=np.int64)
+        t_asm = time.perf_counter() - t0
         self._halo(ctx, ["fluid_row"])
         t0 = time.perf_counter()
-        x, m, row = p["x"], p["m"], p["fluid_row"]
+        x = p["x"]
+        m = coupling.mass if coupled else p["m"]
         # neighbours in global row order: the matrix rows come out (nearly) sorted
         indptr, indices = ctx.indptr, sort_neighbours_by_row(ctx.indptr, ctx.indices, row)
-        fluid = (p["phase"] == PHASE_FLUID).astype(np.uint8)
         slip = p["wall_slip"]
         rho, rho0 = p["rho"], p["rho0"]
         free = p["free_surface"]
+        pin = np.zeros(n)  # Dirichlet pressure of enclosed pockets (soil's mean stress)
         assembly.density_and_surface(x, m, fluid, rho0, indptr, indices, h, dim,
                                      self.num.free_surface_beta, self.num.free_surface_gamma,
-                                     rho, free)
+                                     rho, free, self.num.free_surface_min_fluid, solid,
+                                     p["p"], pin)
         confined = self._pin_if_confined(ctx, fluid[:n], free[:n])
-        t_asm = time.perf_counter() - t0
+        t_asm += time.perf_counter() - t0
         self._halo(ctx, ["rho"])
 
         t0 = time.perf_counter()
         # wall rows enter the strain rate with their no-slip ghost velocity of the last
-        # viscous solve (Adami et al. 2012), fluid rows with their velocity
-        vel = np.where(fluid[:, None].astype(bool), p["v"], p["v_ghost"])
+        # viscous solve (Adami et al. 2012), fluid and solid rows with their velocity
+        vel = np.where(((fluid == 1) | (solid > 0))[:, None], p["v"], p["v_ghost"])
         gamma = rheology.strain_rate(x, vel, m, rho, fluid, slip, indptr, indices, h, dim)
         p["nu"][:n] = rheology.viscosity(gamma, p["p"][:n], fluid[:n], p["material"][:n],
                                          self.table, self.les)
@@ -204,38 +241,43 @@ class IISPH:
         g = np.asarray(ctx.body_acceleration(ctx.time), dtype=np.float64)
         t0 = time.perf_counter()
         rows, cols, vals, rhs = assembly.viscous_triplets(
-            x, p["v"], m, rho, p["nu"], fluid, slip, row, indptr, indices, h, dim, dt, g,
+            x, p["v"], m, rho, p["nu"], fluid, solid, slip, row, indptr, indices, h, dim, dt, g,
             self.num.viscous_term == "morris")
         visc.assemble_csr(*coo_to_csr(rows, cols, vals, visc.offset, visc.n_local))
         t_asm += time.perf_counter() - t0
-        vstar, info_v = visc.solve(rhs, x0=p["v"][:n])
-        own_fluid = fluid[:n].astype(bool)
+        vstar, info_v = visc.solve(rhs[act], x0=p["v"][:n][act])
+        own_fluid = fluid[:n] == 1
+        own_solid = (solid[:n] > 0) & act  # type II
+        wall = act & ~own_fluid & (solid[:n] == 0)
         vs = p["v_star"]
-        vs[:n] = p["v"][:n] + dt * g  # boundary rows: wall velocity + dt g (docs/iisph.md)
-        vs[:n][own_fluid] = vstar[own_fluid]
-        p["v_ghost"][:n][~own_fluid] = vstar[~own_fluid]
+        vs[:n] = p["v"][:n] + dt * g  # wall rows: wall velocity + dt g (docs/iisph.md)
+        vs[:n][solid[:n] > 0] = p["v"][:n][solid[:n] > 0]  # solids: their predictor (7)
+        full = np.zeros((n, dim))
+        full[act] = vstar
+        vs[:n][own_fluid | own_solid] = full[own_fluid | own_solid]
+        p["v_ghost"][:n][wall] = full[wall]
         self._halo(ctx, ["v_star"])
 
         t0 = time.perf_counter()
-        ga = g.copy()  # fixed walls: a_w = 0
         # a step cut short to land on a frame time would amplify the density term of
         # eq. (32) by (dt_cfl / dt)^2: alpha is rescaled so the correction is per CFL step
         alpha = self.num.alpha * min(1.0, (dt / self._dt_cfl) ** 2) if self._dt_cfl > 0 \
             else self.num.alpha
+        acc = solid_acc if coupled else np.zeros((n, dim))  # fixed walls: a_w = 0
         rows, cols, vals, rhs = assembly.ppe_triplets(
             x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt,
-            alpha, d, ga, self.num.ppe_laplacian == "corrected",
+            alpha, d, g, np.ascontiguousarray(acc), pin, self.num.ppe_laplacian == "corrected",
             self.num.density_correction == "both" or
             (self.num.density_correction == "auto" and not confined))
         ppe.assemble_csr(*coo_to_csr(rows, cols, vals, ppe.offset, ppe.n_local))
         t_asm += time.perf_counter() - t0
-        pres, info_p = ppe.solve(rhs, x0=p["p"][:n])
+        pres, info_p = ppe.solve(rhs[act], x0=p["p"][:n][act])
         if self.num.clamp_negative_pressure:  # MPS practice (Koshizuka & Oka 1996)
             # wall rows above the free surface extrapolate a negative pressure that keeps
             # the corner particle in equilibrium: clamped, it is pushed off the wall
-            clamp = own_fluid | self.num.clamp_wall_pressure
+            clamp = own_fluid[act] | self.num.clamp_wall_pressure
             pres = np.where(clamp, np.maximum(pres, 0.0), pres)
-        p["p"][:n] = pres
+        p["p"][:n][act] = pres
         self._halo(ctx, ["p"])
 
         t0 = time.perf_counter()
@@ -252,6 +294,12 @@ class IISPH:
                 grad[surface == 1] = corr[surface == 1]
         vnew = vs[:n] - dt * grad / rho0[:n, None]
         p["v"][:n][own_fluid] = vnew[own_fluid]
+        if own_solid.any():  # eq. (48): the reaction of the fluid pressure, eq. (45)
+            mark = np.zeros(len(fluid))
+            mark[:n][own_solid] = solid[:n][own_solid]
+            react = assembly.coupling_pressure_acceleration(x, p["p"], m, rho, rho0, fluid, mark,
+                                                            indptr, indices, h, dim)
+            p["v"][:n][own_solid] = vs[:n][own_solid] + dt * react[own_solid]
         p["x"][:n][own_fluid] += dt * vnew[own_fluid]
         div = assembly.divergence(x, p["v"], m, rho, fluid, indptr, indices, h, dim)
         inner = own_fluid & (free[:n] == 0)
@@ -268,8 +316,12 @@ class IISPH:
                                          else 0.0),
             "wall_s_fluid_assembly": t_asm,
             "wall_s_fluid_solve": info_v["time_s"] + info_p["time_s"],
+            "wall_s_visc_solve": info_v["time_s"],
+            "wall_s_ppe_solve": info_p["time_s"],
             "wall_s_fluid_halo": self._t_halo,
         }
+        if coupled:
+            self._stats["n_coupled"] = int(global_sum(comm, int(own_solid.sum())))
 
     def stats(self) -> dict:
         """Iterations and residuals of both solves, free-surface count, timings of the last step."""

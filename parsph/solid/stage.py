@@ -27,7 +27,7 @@ import numpy as np
 from decomposition import raise_if_any
 from decomposition.reduce import global_max, global_sum
 from parsph.errors import NumericalError
-from parsph.materials import PHASE_SOLID, PHASE_WALL
+from parsph.materials import PHASE_SOLID
 from parsph.solid import kernels
 from parsph.solid.boundary import initial_velocity, velocity_masks, wall_contact
 from parsph.solid.update import CAM_CLAY, HENCKY, C, material_table, stress_terms, \
@@ -143,6 +143,13 @@ class TLSPH:
 
     def step(self, ctx, dt: float) -> None:
         """Advance the owned solid particles from t to t + dt (positions included)."""
+        self.predict(ctx, dt)
+        self.finish_step(ctx, dt)
+
+    def predict(self, ctx, dt: float) -> None:
+        r"""Steps 1-3: :math:`\mathbf v^{\beta+1}` of eq. (7) (stress, JST, body force),
+        Dirichlet constraints and wall contact. A coupled step (section 5) corrects the
+        type-II rows' velocity between :meth:`predict` and :meth:`finish_step`."""
         p, n, dim = ctx.particles, ctx.particles.n_owned, ctx.dim
         X, sel, fp = self.X3, self.sel, self.fp
         args = (n, ctx.indptr, ctx.indices)
@@ -171,8 +178,28 @@ class TLSPH:
         solid = sel[:n]
         v = p["v"]
         v[:n][solid] += dt * acc[solid]
-        v[:n][self.vmask] = self.vvalue[self.vmask]
+        # the acceleration of the forces (coupling: the wall-pressure extrapolation of
+        # eq. (43) uses it; held rows do not accelerate; contact impulses are left out)
+        acc[~solid] = 0.0
+        acc[self.vmask] = 0.0
+        self.force_acceleration = acc
+        self.constrain(ctx)
         self._stats["solid_contacts"] = self._contact(ctx) if self.has_walls else 0
+
+    def constrain(self, ctx) -> None:
+        """Dirichlet velocity constraints (``[[constraints]]``) on the owned rows."""
+        v = ctx.particles["v"]
+        n = ctx.particles.n_owned
+        v[:n][self.vmask] = self.vvalue[self.vmask]
+
+    def finish_step(self, ctx, dt: float) -> None:
+        r"""Steps 4-5: :math:`\dot{\mathbf F}` (eq. (14)) from the final velocities, the
+        constitutive update and :math:`\mathbf x^{\beta+1}`."""
+        p, n, dim = ctx.particles, ctx.particles.n_owned, ctx.dim
+        X, sel, fp = self.X3, self.sel, self.fp
+        args = (n, ctx.indptr, ctx.indices)
+        solid = sel[:n]
+        v = p["v"]
         ctx.update_halo(["v"])
         fdot = np.zeros((n, 3, 3))
         kernels.velocity_gradient(self._pad(v), X, self.vol, p["L"], fp, *args, fdot)
@@ -199,7 +226,7 @@ class TLSPH:
 
         p, n = ctx.particles, ctx.particles.n_owned
         solid = self.sel[:n]
-        near = ctx.nearby(p["phase"][:n] == PHASE_WALL, ["x"], around=solid)
+        near = ctx.nearby_walls(["x"], around=solid)
         xw = near["x"]
         count = 0
         rows = np.flatnonzero(solid).astype(np.int64)

@@ -1,0 +1,212 @@
+r"""The coupled step: TLSPH solid and IISPH fluid as one FSI problem, and phase change.
+
+One step (paper section 5, eqs. (42)-(48); docs/coupling.md), after the driver's refresh
+of the main set (mixed layout):
+
+1. TLSPH predictor on the solid view: :math:`\mathbf v^{pred} = \mathbf v^\beta + \Delta t
+   (\nabla_0\cdot\mathbf P/\rho_0 + \mathbf g)` (eq. (7)), constraints, wall contact;
+2. if there is fluid anywhere: the IISPH step on the main set with the solid rows in
+   it — type-II solids (fluid neighbours) are unknowns of the viscous predictor
+   (eq. (47), right-hand side :math:`\mathbf v^{pred}`) and boundary rows of the PPE
+   (pressure extrapolated with their acceleration, eq. (43)); their velocity gets the
+   reaction of the fluid pressure (eqs. (45), (48)); type-I solids stay out;
+3. TLSPH corrector on the view: :math:`\dot{\mathbf F}` from the final velocities,
+   constitutive update, positions;
+4. phase change (section 3.3): owned solid rows with :math:`\varepsilon_p` past
+   ``phase_change.eps_p_limit`` become fluid rows of ``phase_change.fluid`` (id, x, v, m
+   kept: mass, momentum and ids are conserved); the solid view (reference halo and
+   lists, correction matrices) is rebuilt on every rank; the next refresh moves the new
+   fluid rows to their owner by current position.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from decomposition.reduce import global_max, global_min, global_sum
+from parsph.coupling.view import SolidView
+from parsph.materials import PHASE_FLUID, PHASE_SOLID
+
+#: Fields the TLSPH step changes on solid rows (copied back to the main set each step).
+#: (``rho0`` and ``rho`` of solid rows in the main set are what the fluid sees; the
+#: solid's own rest density lives in the view.)
+SOLID_STATE = ("x", "v", "F", "tau", "eps_e", "P", "L", "Q", "lapv", "p_c", "modulus",
+               "solid_init", "eps_p", "p", "porosity")
+
+#: stats.csv columns of the coupling; ``fsi_force_*`` (N, N/m in 2D) is the net force of
+#: the fluid on the solid (eq. (45), pressure and viscous parts) before constraints.
+STATS = ("n_fluidised", "fluidised_volume", "n_solid_rank_min", "n_solid_rank_max",
+         "n_fluid_rank_min", "n_fluid_rank_max", "wall_s_solid", "wall_s_fluid",
+         "wall_s_phase_change")
+
+
+class Coupled:
+    """TLSPH + IISPH + phase change on one particle set (see the module docstring)."""
+
+    name = "coupled"
+
+    def __init__(self, ctx):
+        from parsph.fluid.stage import IISPH, lattice_density_ratio
+        from parsph.solid.stage import TLSPH
+
+        self.solid = TLSPH(ctx)  # adds the solid fields to the main set
+        self.fluid = IISPH(ctx)  # adds the fluid fields
+        ctx.particles.add_field("fluidised", dtype=np.uint8)
+        ctx.particles.add_field("ref_count0", dtype=np.int32)  # initial reference neighbours
+        pc = ctx.scene.phase_change
+        names = list(ctx.scene.materials)
+        self.limit = pc.eps_p_limit
+        self.min_support = pc.min_support
+        self.target = names.index(pc.fluid) if pc.fluid else -1
+        fluids = [m for m in ctx.materials if "iisph" in m.stages]
+        # the density the fluid sees solid particles with (one fluid density per scene:
+        # the phase-change target's, else the first fluid material's)
+        self.rho_f = ctx.materials[self.target].density if self.target >= 0 \
+            else fluids[0].density
+        self.target_rho0 = self.rho_f * lattice_density_ratio(ctx.h / ctx.d, ctx.dim)
+        self.output_fields = tuple(self.fluid.output_fields) + ("fluidised",)
+        self.stats_columns = tuple(self.solid.stats_columns) + tuple(self.fluid.stats_columns) \
+            + ("n_coupled",) + STATS + tuple(f"fsi_force_{a}" for a in "xyz"[:ctx.dim])
+        self.view = None
+        self._stats = {k: 0.0 for k in STATS}
+        self._fluid_any = False
+
+    # -- set-up ------------------------------------------------------------------
+    def _build_view(self, ctx) -> None:
+        self.view = SolidView(ctx)
+        sp, ns = self.view.ctx.particles, self.view.n
+        count = np.diff(self.view.ctx.indptr).astype(np.int32)
+        first = sp["ref_count0"][:ns] == 0
+        sp["ref_count0"][:ns][first] = count[first]
+        self.solid.setup(self.view.ctx)
+        self.view.write_back(SOLID_STATE + ("ref_count0",))
+
+    def _orphans(self) -> np.ndarray:
+        """Main-set rows of the solids left with too small a share of their reference
+        neighbours (a gap of the paper filled: such a fragment cannot carry stress)."""
+        view = self.view
+        count = np.diff(view.ctx.indptr)
+        ref0 = view.ctx.particles["ref_count0"][: view.n]
+        return view.rows[count < self.min_support * ref0]
+
+    def setup(self, ctx) -> None:
+        self._build_view(ctx)
+        p, n = ctx.particles, ctx.n_owned
+        solid = p["phase"][:n] == PHASE_SOLID
+        p["rho0"][:n][solid] = self.target_rho0  # as the fluid sees them
+        p["rho"][:n][solid] = self.target_rho0
+        self._count(ctx)
+
+    def _coupling(self, ctx, acc):
+        """Masses as the fluid sees them: a solid particle counts as d^dim of fluid."""
+        from parsph.fluid.stage import Coupling
+
+        p = ctx.particles
+        solid = p["phase"] == PHASE_SOLID
+        m_fluid = self.rho_f * ctx.d ** ctx.dim
+        mass = np.where(solid, m_fluid, p["m"])
+        scale = np.where(solid, m_fluid / p["m"], 0.0)
+        return Coupling(acc=acc, mass=mass, scale=scale)
+
+    def restore(self, ctx, state) -> None:
+        self.solid.restore(self.view.ctx, state.get("solid", {}))
+        self._stats["n_fluidised"] = int(state.get("n_fluidised", 0))
+
+    def state(self) -> dict:
+        return {"n_fluidised": int(self._stats["n_fluidised"])}
+
+    def _count(self, ctx) -> None:
+        p = ctx.particles
+        self._fluid_any = global_sum(ctx.comm, int((p["phase"][: p.n_owned] == PHASE_FLUID)
+                                                   .sum())) > 0
+
+    # -- protocol ----------------------------------------------------------------
+    def max_dt(self, ctx) -> float:
+        """The smaller of the solid and fluid limits of eq. (49)."""
+        self.view.locate()
+        dt = self.solid.max_dt(self.view.ctx)
+        if self._fluid_any:
+            dt = min(dt, self.fluid.max_dt(ctx))
+        return dt
+
+    def step(self, ctx, dt) -> None:
+        p, n, dim = ctx.particles, ctx.n_owned, ctx.dim
+        view = self.view
+        sctx = view.ctx
+        sctx.time, sctx.step = ctx.time, ctx.step
+        t0 = time.perf_counter()
+        view.locate()
+        view.sync(("x", "v"))
+        ns = view.n
+        sp = sctx.particles
+        self.solid.predict(sctx, dt)
+        t_solid = time.perf_counter() - t0
+        t_fluid = 0.0
+        if self._fluid_any:
+            t0 = time.perf_counter()
+            p["v"][view.rows] = sp["v"][:ns]
+            acc = np.zeros((n, dim))
+            acc[view.rows] = self.solid.force_acceleration
+            ctx.update_halo(["v"])
+            self.fluid.step(ctx, dt, self._coupling(ctx, acc))
+            vnew = p["v"][view.rows]
+            force = (sp["m"][:ns, None] * (vnew - sp["v"][:ns])).sum(axis=0) / dt
+            sp["v"][:ns] = vnew
+            self.solid.constrain(sctx)
+            t_fluid = time.perf_counter() - t0
+        else:
+            force = np.zeros(dim)
+        force = global_sum(ctx.comm, force)
+        self._stats.update({f"fsi_force_{a}": float(force[k]) for k, a in enumerate("xyz"[:dim])})
+        t0 = time.perf_counter()
+        self.solid.finish_step(sctx, dt)
+        view.write_back(SOLID_STATE)
+        t_solid += time.perf_counter() - t0
+        t0 = time.perf_counter()
+        self._phase_change(ctx)
+        self._stats.update(wall_s_solid=t_solid, wall_s_fluid=t_fluid,
+                           wall_s_phase_change=time.perf_counter() - t0)
+
+    def _phase_change(self, ctx) -> None:
+        """Section 3.3: solid rows past the plastic-strain limit become fluid."""
+        p, n = ctx.particles, ctx.n_owned
+        if self.limit > 0.0:
+            flag = np.flatnonzero((p["phase"][:n] == PHASE_SOLID) & (p["eps_p"][:n] > self.limit))
+            while True:  # then the fragments they leave behind, until none is left
+                count = global_sum(ctx.comm, len(flag))
+                if not count:
+                    break
+                p["phase"][flag] = PHASE_FLUID
+                p["material"][flag] = self.target
+                p["fluidised"][flag] = 1
+                p["rho0"][flag] = self.target_rho0
+                p["rho"][flag] = self.target_rho0
+                p["nu"][flag] = 0.0
+                p["wall_slip"][flag] = 0
+                self._stats["n_fluidised"] = int(self._stats["n_fluidised"]) + int(count)
+                self._build_view(ctx)  # reference halo and lists without them
+                flag = self._orphans()
+        self._count(ctx)
+
+    def stats(self) -> dict:
+        ctx_stats = dict(self._stats)
+        ctx_stats.update(self.solid.stats())
+        if self._fluid_any:
+            ctx_stats.update(self.fluid.stats())
+        return {k: ctx_stats.get(k, 0.0) for k in self.stats_columns}
+
+    def after_refresh(self, ctx) -> None:
+        """Per-rank counts and the fluidised volume, after the re-distribution."""
+        p, n, comm = ctx.particles, ctx.n_owned, ctx.comm
+        phase = p["phase"][:n]
+        ns, nf = int((phase == PHASE_SOLID).sum()), int((phase == PHASE_FLUID).sum())
+        mine = p["fluidised"][:n] == 1
+        vol = float((p["m"][:n][mine] / self.target_rho0).sum()) if mine.any() else 0.0
+        self._stats.update(
+            n_solid_rank_min=global_min(comm, ns), n_solid_rank_max=global_max(comm, ns),
+            n_fluid_rank_min=global_min(comm, nf), n_fluid_rank_max=global_max(comm, nf),
+            fluidised_volume=global_sum(comm, vol))
+
+    def finish(self, ctx) -> None:
+        self.fluid.destroy()

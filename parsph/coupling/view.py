@@ -1,0 +1,104 @@
+"""The solid's own view of a coupled scene: reference halo and lists (docs/coupling.md).
+
+In the mixed layout the main particle set holds every row, distributed by reference
+position for solids and by current position for the rest, with a current-configuration
+halo. TLSPH needs its fixed reference neighbourhoods (section 3): the owned solid rows
+are copied into a :class:`SolidView`, which has its own reference halo (an RCB halo in
+X), CSR lists built once from X, and a :class:`SolidContext` the unchanged TLSPH stage
+runs on. The view is rebuilt when particles leave the solid (phase change), which is
+how the reference lists and halos are edited on every rank concerned.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from decomposition.halo import Halo, proximity_halo
+from parsph.materials import PHASE_SOLID, PHASE_WALL
+from parsph.neighbours import build_csr
+from parsph.particles import ParticleSet
+from parsph.run import Context
+
+
+@dataclass
+class SolidContext(Context):
+    """The context TLSPH sees in a coupled scene; walls are looked up in ``main``."""
+
+    main: Context = None
+
+    def nearby_walls(self, names, around=None) -> dict:
+        """Collective: wall rows of the main set near this rank's solids (current x)."""
+        m = self.main.particles
+        n = m.n_owned
+        x = self.particles["x"][: self.n_owned]
+        pts = x if around is None else x[around]
+        if len(pts):
+            lo, hi = pts.min(axis=0), pts.max(axis=0)
+        else:
+            lo, hi = np.full(self.dim, np.inf), np.full(self.dim, -np.inf)
+        halo = proximity_halo(self.comm, m["x"][:n], m["phase"][:n] == PHASE_WALL,
+                              self.radius, lo, hi)
+        return halo.exchange(m.owned_fields(names), shift_fields=())
+
+
+class SolidView:
+    """Owned solid rows of ``ctx`` (the main context) with their reference halo.
+
+    Attributes
+    ----------
+    ctx : SolidContext
+        What the TLSPH stage runs on.
+    rows : ndarray of int
+        Main-set row of each owned solid row (valid after :meth:`locate`).
+    """
+
+    def __init__(self, ctx):
+        p = ctx.particles
+        n = p.n_owned
+        self.main = ctx
+        rows = np.flatnonzero(p["phase"][:n] == PHASE_SOLID)
+        sp = ParticleSet(ctx.dim, {k: a[:n][rows] for k, a in p.data.items()})
+        halo = Halo.build(ctx.comm, ctx.rcb_ref, sp["X"][: sp.n_owned], ctx.radius, ctx.box)
+        sp.set_halo(halo.exchange(sp.owned_fields(), shift_fields=("x", "X")))
+        indptr, indices = build_csr(sp["X"], sp.n_owned, ctx.radius)
+        self.ctx = SolidContext(
+            scene=ctx.scene, comm=ctx.comm, particles=sp, box=ctx.box, dim=ctx.dim, d=ctx.d,
+            h=ctx.h, radius=ctx.radius, rcb=ctx.rcb_ref, halo=halo, indptr=indptr,
+            indices=indices, layout="reference", key="X", restarted=ctx.restarted, out=ctx.out,
+            materials=ctx.materials, time=ctx.time, step=ctx.step, main=ctx)
+        self.ids = sp["id"][: sp.n_owned].copy()
+        self.rows = rows
+
+    @property
+    def n(self) -> int:
+        return self.ctx.particles.n_owned
+
+    def locate(self) -> None:
+        """Main-set rows of the solid rows after the main set was re-distributed.
+
+        Solid rows never change rank (their owner follows X), but migration reorders
+        the main set; the rows are found again by global id.
+        """
+        p = self.main.particles
+        ids = p["id"][: p.n_owned]
+        order = np.argsort(ids, kind="stable")
+        pos = np.searchsorted(ids[order], self.ids)
+        pos = np.minimum(pos, max(len(order) - 1, 0))
+        rows = order[pos] if len(order) else np.zeros(0, dtype=np.int64)
+        if len(rows) != len(self.ids) or not np.array_equal(ids[rows], self.ids):
+            raise RuntimeError("coupled layout: a solid row left its rank; solid rows are "
+                               "owned by their reference position and must not migrate")
+        self.rows = rows
+
+    def sync(self, names) -> None:
+        """Copy the named fields of the owned solid rows: main set -> view."""
+        sp, p = self.ctx.particles, self.main.particles
+        for k in names:
+            sp[k][: self.n] = p[k][self.rows]
+
+    def write_back(self, names) -> None:
+        """Copy the named fields of the owned solid rows: view -> main set."""
+        sp, p = self.ctx.particles, self.main.particles
+        for k in names:
+            p[k][self.rows] = sp[k][: self.n]

@@ -1,0 +1,452 @@
+"""Solid-fluid coupling (paper section 5) and phase change (section 3.3), on 1 and 2 ranks."""
+import csv
+import os
+
+import numpy as np
+import pytest
+
+from parsph.fluid import assembly
+from parsph.kernel import fac_grad, smoothing_length
+from parsph.run import run
+from parsph.scene import load_scene
+from tests.scenes import last_frame, run_on_one_and_two, write
+
+RHO_W, G = 1000.0, 9.81
+
+#: A stiff block held fixed in the middle of a water tank (water in four boxes around it).
+BLOCK_IN_WATER = """
+[scene]
+name = "block_in_water"
+[domain]
+dim = 2
+particle_size = 0.025
+lo = [-0.2, -0.2]
+hi = [1.2, 1.3]
+[run]
+end_time = 0.3
+[output]
+every = 0.1
+progress = false
+[fluid]
+clamp_wall_pressure = false
+numerical_viscosity = 0.008
+[gravity]
+g = [0.0, -9.81]
+[materials.water]
+model = "newtonian"
+density = 1000.0
+viscosity = 1.0e-6
+[materials.block]
+model = "hencky"
+density = 2000.0
+young_modulus = 1.0e6
+poisson_ratio = 0.3
+[[bodies]]
+name = "w_left"
+material = "water"
+shape = "box"
+lo = [0.0, 0.0]
+hi = [0.4, 0.8]
+[[bodies]]
+name = "w_right"
+material = "water"
+shape = "box"
+lo = [0.6, 0.0]
+hi = [1.0, 0.8]
+[[bodies]]
+name = "w_below"
+material = "water"
+shape = "box"
+lo = [0.4, 0.0]
+hi = [0.6, 0.3]
+[[bodies]]
+name = "w_above"
+material = "water"
+shape = "box"
+lo = [0.4, 0.5]
+hi = [0.6, 0.8]
+[[bodies]]
+name = "block"
+material = "block"
+shape = "box"
+lo = [0.4, 0.3]
+hi = [0.6, 0.5]
+[[constraints]]
+name = "hold"
+lo = [0.39, 0.29]
+hi = [0.61, 0.51]
+velocity = [0.0, 0.0]
+[[walls]]
+name = "tank"
+shape = "tank"
+lo = [0.0, 0.0]
+hi = [1.0, 1.2]
+sides = ["left", "right", "bottom"]
+"""
+
+#: A dam break whose floor is a held TLSPH plate (no wall below it).
+WATER_ON_PLATE = """
+[scene]
+name = "water_on_plate"
+[domain]
+dim = 2
+particle_size = 0.02
+lo = [-0.4, -0.3]
+hi = [1.4, 1.6]
+[run]
+end_time = 0.5
+[output]
+every = 0.1
+progress = false
+[gravity]
+g = [0.0, -9.81]
+[materials.water]
+model = "newtonian"
+density = 1000.0
+viscosity = 1.0e-6
+[materials.plate]
+model = "hencky"
+density = 2000.0
+young_modulus = 5.0e6
+poisson_ratio = 0.3
+[[bodies]]
+name = "water"
+material = "water"
+shape = "box"
+lo = [-0.1, 0.0]
+hi = [0.2, 0.4]
+[[bodies]]
+name = "plate"
+material = "plate"
+shape = "box"
+lo = [-0.2, -0.1]
+hi = [1.2, 0.0]
+[[constraints]]
+name = "hold"
+lo = [-0.3, -0.2]
+hi = [1.3, 0.01]
+velocity = [0.0, 0.0]
+[[walls]]
+name = "sides"
+shape = "tank"
+lo = [-0.1, 0.0]
+hi = [1.1, 1.4]               # the run-up at the far wall passes 0.8 m
+sides = ["left", "right"]
+"""
+
+#: A cohesionless column that yields at once: a low phase-change limit fluidises much of
+#: it within a few hundred steps (for the rank comparisons and the all-at-once test).
+QUICK_COLLAPSE = """
+[scene]
+name = "quick_collapse"
+[domain]
+dim = 2
+particle_size = 0.01
+lo = [-0.05, -0.05]
+hi = [0.65, 0.3]
+[run]
+end_time = 0.05
+[output]
+every = 0.025
+progress = false
+front_direction = [1.0, 0.0]
+[gravity]
+g = [0.0, -9.81]
+[solid]
+wall_friction = 0.36
+[phase_change]
+eps_p_limit = 0.02
+fluid = "debris"
+[materials.soil]
+model = "drucker_prager"
+density = 2000.0
+young_modulus = 1.0e6
+poisson_ratio = 0.3
+friction_angle = 20.0
+cohesion = 0.0
+[materials.debris]
+model = "bingham"
+density = 2000.0
+viscosity = 1.0e-3
+viscosity_max = 1.0e3
+cohesion = 0.0
+friction_angle = 20.0
+[[bodies]]
+name = "column"
+material = "soil"
+shape = "box"
+lo = [0.0, 0.0]
+hi = [0.2, 0.2]
+[[walls]]
+name = "box"
+shape = "tank"
+lo = [0.0, 0.0]
+hi = [0.6, 0.25]
+sides = ["left", "bottom"]
+"""
+
+
+def _scene(tmp, text, overrides=(), name="scene.toml", comm=None):
+    """Write the scene on rank 0 only (ranks share ``tmp``), then load it everywhere."""
+    from decomposition import world
+
+    comm = comm or world()
+    path = comm.bcast(write(tmp, text, name) if comm.rank == 0 else None)
+    return load_scene(path, list(overrides))
+
+
+def _stats(out):
+    with open(os.path.join(out, "stats.csv")) as fh:
+        return list(csv.DictReader(fh))
+
+
+# ------------------------------------------------------------------ coupling kernels
+
+def _pair_set():
+    """Two fluid rows (0, 1) and two solid rows (2, 3) within reach of each other."""
+    d = 0.1
+    h = smoothing_length(d)
+    x = np.array([[0.0, 0.1], [0.1, 0.12], [0.02, 0.0], [0.11, 0.01]])
+    n = len(x)
+    indptr = np.arange(0, n * (n - 1) + 1, n - 1, dtype=np.int64)
+    indices = np.array([j for i in range(n) for j in range(n) if j != i], dtype=np.int64)
+    fluid = np.array([1, 1, 0, 0], dtype=np.uint8)
+    m_true = np.array([10.0, 10.0, 30.0, 30.0])
+    m = np.array([10.0, 10.0, 10.0, 10.0])  # the mass the fluid sees (rho_f d^2)
+    scale = np.where(fluid == 1, 0.0, m / m_true)
+    rho = np.array([990.0, 1010.0, 1000.0, 1000.0])
+    rho0 = np.full(n, 1000.0)
+    p = np.array([500.0, 700.0, 650.0, 900.0])
+    return d, h, x, indptr, indices, fluid, m_true, m, scale, rho, rho0, p
+
+
+def test_pressure_reaction_is_the_force_the_fluid_feels():
+    """Eq. (45): sum over solids of m a equals minus what the fluid rows get from them
+    through eqs. (37) and (31); momentum is conserved pair by pair."""
+    d, h, x, indptr, indices, fluid, m_true, m, scale, rho, rho0, p = _pair_set()
+    react = assembly.coupling_pressure_acceleration(x, p, m, rho, rho0, fluid, scale, indptr,
+                                                    indices, h, 2)
+    on_fluid = np.zeros(2)
+    for f in (0, 1):
+        for s in (2, 3):
+            r = x[f] - x[s]
+            gw = fac_grad(np.linalg.norm(r), h, 2) * r
+            on_fluid += -m_true[f] * rho[f] / rho0[f] * m[s] \
+                * (p[f] / rho[f] ** 2 + p[s] / rho[s] ** 2) * gw
+    on_solid = (m_true[2:, None] * react[2:]).sum(axis=0)
+    assert np.abs(on_fluid).max() > 1e-3  # a real force
+    assert on_solid == pytest.approx(-on_fluid, rel=1e-12, abs=1e-12)
+    assert np.all(react[:2] == 0.0)
+
+
+def test_viscous_exchange_between_phases_conserves_momentum():
+    """Eq. (47): the implicit viscous coupling of a fluid row and a type-II solid row is
+    equal and opposite (m_i A_ij = m_j A_ji on the true masses), so that for any v* the
+    momentum exchanged sums to zero; the solid row's right-hand side is its predictor."""
+    d, h, x, indptr, indices, fluid, m_true, m, scale, rho, rho0, p = _pair_set()
+    nu = np.array([0.5, 0.2, 0.0, 0.0])
+    v = np.array([[0.1, 0.0], [0.0, 0.3], [0.05, -0.02], [0.0, 0.0]])
+    slip = np.zeros(4, dtype=np.uint8)
+    row = np.arange(4, dtype=np.int64)
+    dt, g = 1e-2, np.array([0.0, -9.81])
+    rows, cols, vals, rhs = assembly.viscous_triplets(x, v, m, rho, nu, fluid, scale, slip, row,
+                                                      indptr, indices, h, 2, dt, g, False)
+    A = np.zeros((8, 8))
+    np.add.at(A, (rows, cols), vals)
+    assert rhs[2] == pytest.approx(v[2])  # solid: its predictor (eq. 7), no extra dt g
+    assert rhs[0] == pytest.approx(v[0] + dt * g)
+    vstar = np.random.default_rng(3).normal(size=(4, 2))
+    force = (A @ vstar.reshape(-1)).reshape(4, 2) - vstar  # -dt * viscous acceleration
+    fluid_solid = np.zeros(2)
+    for i in range(4):  # the exchange between the phases only
+        for j in range(4):
+            if fluid[i] != fluid[j]:
+                blk = A[2 * i:2 * i + 2, 2 * j:2 * j + 2]
+                fluid_solid += m_true[i] * (blk @ (vstar[j] - vstar[i]))
+    assert np.abs(A[4:6, 6:8]).max() == 0.0  # solid rows couple to fluid rows only
+    assert np.abs(fluid_solid).max() < 1e-12 * np.abs(m_true[:, None] * force).max()
+
+
+# ------------------------------------------------------------------ coupled runs
+
+def test_block_in_water_feels_its_buoyancy(comm, mpi_tmp_path):
+    """A held TLSPH block in water at rest: the fluid's net force on it (eq. 45) is
+    rho_w g V upward (Archimedes), within 5 % averaged over 0.05-0.3 s."""
+    scene = _scene(mpi_tmp_path, BLOCK_IN_WATER)
+    out = os.path.join(mpi_tmp_path, "out")
+    run(scene, out, comm=comm, progress=False)
+    if comm.rank == 0:
+        rows = [r for r in _stats(out) if float(r["time"]) >= 0.05]
+        dt = np.array([float(r["dt"]) for r in rows])
+        full = dt > 0.5 * np.median(dt)  # a step cut short to land on a frame is an impulse
+        fy = np.array([float(r["fsi_force_y"]) for r in rows])[full]
+        fx = np.array([float(r["fsi_force_x"]) for r in rows])[full]
+        buoyancy = RHO_W * G * 0.2 * 0.2
+        assert fy.mean() == pytest.approx(buoyancy, rel=0.05)
+        assert abs(fx.mean()) < 1e-3 * buoyancy
+        assert min(int(r["n_coupled"]) for r in rows) > 0
+        f = last_frame(out)
+        block = f["phase"] == 0
+        assert np.abs(f["v"][block]).max() == 0.0  # held
+        assert np.abs(f["v"][f["phase"] == 1]).max() < 0.05  # water at rest
+
+
+def test_fluid_does_not_pass_through_a_tlsph_floor(comm, mpi_tmp_path):
+    """A water column collapses along a held TLSPH plate that is its only floor and hits
+    the far wall: no fluid particle gets into or below the plate."""
+    scene = _scene(mpi_tmp_path, WATER_ON_PLATE)
+    out = os.path.join(mpi_tmp_path, "out")
+    run(scene, out, comm=comm, progress=False)
+    if comm.rank == 0:
+        from parsph.io import read_frame, read_frames
+
+        h5 = os.path.join(out, "particles.h5")
+        d = scene.domain.particle_size
+        for step, t in read_frames(h5):
+            f = read_frame(h5, step)
+            water = f["x"][f["phase"] == 1]
+            assert water[:, 1].min() > 0.0 - 0.25 * d, f"fluid in the plate at t = {t}"
+        assert water[:, 0].max() > 0.9  # it did run along the plate
+
+
+def test_phase_change_of_every_particle_at_once(comm, mpi_tmp_path):
+    """Every solid particle fluidises in one step (and, on 2 ranks, most move to another
+    owner): ids, mass and momentum conserved, the run continues as a fluid."""
+    from decomposition.reduce import gather_to_root, global_sum
+    from parsph.run import _build, refresh
+
+    scene = _scene(mpi_tmp_path, QUICK_COLLAPSE, ["phase_change.eps_p_limit=1.0"])
+    ctx, specs, stages, _ = _build(scene, os.path.join(mpi_tmp_path, "out"), comm, (), None)
+    (stage,) = stages
+    dt = min(s.max_dt(ctx) for s in stages)
+    for _ in range(5):
+        stage.step(ctx, dt)
+        ctx.time += dt
+        refresh(ctx)
+        stage.after_refresh(ctx)
+
+    def totals():
+        p, n = ctx.particles, ctx.n_owned
+        moving = p["phase"][:n] != 2
+        mom = (p["m"][:n, None] * p["v"][:n])[moving].sum(axis=0)
+        ids = gather_to_root(comm, p["id"][:n][moving])
+        return global_sum(comm, p["m"][:n][moving].sum()), global_sum(comm, mom), ids
+
+    p = ctx.particles
+    n_solid = global_sum(comm, int((p["phase"][:ctx.n_owned] == 0).sum()))
+    mass0, mom0, ids0 = totals()
+    p["eps_p"][: ctx.n_owned][p["phase"][: ctx.n_owned] == 0] = 2.0
+    stage._phase_change(ctx)
+    assert global_sum(comm, int((p["phase"][:ctx.n_owned] == 0).sum())) == 0
+    assert stage.stats()["n_fluidised"] == n_solid
+    assert stage.view.n == 0 and len(stage.view.ctx.indices) == 0
+    refresh(ctx)
+    stage.after_refresh(ctx)
+    mass1, mom1, ids1 = totals()
+    assert mass1 == pytest.approx(mass0, rel=1e-14)
+    assert np.allclose(mom1, mom0, rtol=1e-12, atol=1e-15)
+    if comm.rank == 0:
+        assert np.array_equal(np.sort(np.concatenate(ids0)), np.sort(np.concatenate(ids1)))
+    # the owner is now the current-position partition
+    x = p["x"][:ctx.n_owned]
+    assert np.all(ctx.rcb.owner(x) == comm.rank)
+    for _ in range(10):  # and it runs on as a fluid
+        dt = stage.max_dt(ctx)
+        stage.step(ctx, dt)
+        ctx.time += dt
+        refresh(ctx)
+    v = p["v"][:ctx.n_owned]
+    assert np.isfinite(v).all() and np.abs(v).max() < 2.0
+    stage.finish(ctx)
+
+
+@pytest.mark.mpi(min_size=2)
+def test_phase_change_at_a_rank_boundary(comm, mpi_tmp_path):
+    """A particle on the reference-partition cut, with reference neighbours on the other
+    rank and its new owner by current position the other rank too, fluidises: the
+    other rank drops it from its lists and recomputes its neighbours' correction
+    matrices, the particle moves to its new owner, mass and ids are conserved."""
+    from decomposition.reduce import allgather, global_sum
+    from parsph.run import _build, refresh
+
+    scene = _scene(mpi_tmp_path, QUICK_COLLAPSE, ["phase_change.eps_p_limit=10.0"])
+    ctx, specs, stages, _ = _build(scene, os.path.join(mpi_tmp_path, "out"), comm, (), None)
+    (stage,) = stages
+    view = stage.view
+    sp = view.ctx.particles
+    me, other = comm.rank, 1 - comm.rank
+    # owned solids that the other rank holds in its reference halo and whose owner by
+    # current position (the fluid partition) is the other rank
+    halo_of = allgather(comm, sp["id"][view.n:])
+    own = sp["id"][: view.n]
+    x_owner = ctx.rcb.owner(sp["x"][: view.n])
+    cand = own[np.isin(own, halo_of[other]) & (x_owner == other)] if me < 2 else own[:0]
+    pick = int(min(np.concatenate(allgather(comm, cand[:1])).tolist() or [-1]))
+    assert pick >= 0, "no particle on the cut whose fluid owner is the other rank"
+    home = int(np.argmax(allgather(comm, int(pick in own))))
+    # the other rank's reference neighbours of it
+    local = np.flatnonzero(sp["id"] == pick)
+    nb = np.zeros(0, np.int64)
+    if me != home and len(local):
+        rows = np.repeat(np.arange(view.n), np.diff(view.ctx.indptr))
+        nb = sp["id"][rows[view.ctx.indices == local[0]]]
+    neighbours = np.concatenate(allgather(comm, nb))
+    assert len(neighbours) > 0
+    L_before = {int(i): sp["L"][k].copy() for k, i in enumerate(own)}
+    p = ctx.particles
+    m_tot = global_sum(comm, p["m"][:ctx.n_owned].sum())
+    p["eps_p"][: ctx.n_owned][p["id"][: ctx.n_owned] == pick] = 20.0
+    stage._phase_change(ctx)
+    view = stage.view
+    sp = view.ctx.particles
+    assert pick not in sp["id"]  # in no list, owned or halo, on either rank
+    changed = [np.abs(sp["L"][k] - L_before[int(i)]).max()
+               for k, i in enumerate(sp["id"][: view.n]) if i in neighbours]
+    assert len(changed) == (len(neighbours) if me != home else len(changed))
+    if me != home:
+        assert min(changed) > 1e-6  # correction matrices of the neighbours recomputed
+    refresh(ctx)
+    owners = allgather(comm, int(np.any(p["id"][:ctx.n_owned] == pick)))
+    assert owners[home] == 0 and owners[other if me == home else me] in (0, 1)
+    assert sum(owners) == 1 and owners[1 - home] == 1  # it moved to the other rank
+    assert global_sum(comm, p["m"][:ctx.n_owned].sum()) == pytest.approx(m_tot, rel=1e-14)
+    stage.after_refresh(ctx)
+    dt = stage.max_dt(ctx)
+    stage.step(ctx, dt)  # the coupled step runs with the new fluid particle
+    stage.finish(ctx)
+
+
+@pytest.mark.mpi(min_size=2)
+def test_phase_change_one_vs_two_ranks(comm, mpi_tmp_path):
+    """Through phase changes (and fluid solves), 1 and 2 ranks agree by global id."""
+    scene = _scene(mpi_tmp_path, QUICK_COLLAPSE)
+    one, two = run_on_one_and_two(comm, scene, mpi_tmp_path)
+    if comm.rank == 0:
+        a, b = last_frame(one), last_frame(two)
+        assert np.array_equal(a["id"], b["id"])
+        assert np.array_equal(a["phase"], b["phase"])
+        assert (a["phase"] == 1).sum() > 20  # phase changes happened
+        assert np.abs(a["x"] - b["x"]).max() < 1e-6
+        assert np.abs(a["v"] - b["v"]).max() < 1e-4
+        sa, sb = _stats(one), _stats(two)
+        assert sa[-1]["n_fluidised"] == sb[-1]["n_fluidised"]
+
+
+def test_slope_failure_fluidises_and_runs_out_further(comm, mpi_tmp_path):
+    """Section 6.2: with phase change the slope's toe runs out much further than the
+    TLSPH-only slope (which stops within ~0.1 m), at t = 0.7 s already."""
+    fronts = {}
+    for name in ("slope_failure_solid", "slope_failure"):
+        scene = load_scene(name, ["run.end_time=0.7", "output.progress=false"])
+        out = os.path.join(mpi_tmp_path, name)
+        run(scene, out, comm=comm, progress=False)
+        if comm.rank == 0:
+            rows = _stats(out)
+            fronts[name] = float(rows[-1]["front"])
+            if name == "slope_failure":
+                assert int(float(rows[-1]["n_fluidised"])) > 100
+                assert float(rows[-1]["fluidised_volume"]) == pytest.approx(
+                    int(float(rows[-1]["n_fluidised"])) * 0.05 ** 2, rel=0.01)
+    if comm.rank == 0:
+        assert fronts["slope_failure_solid"] < 0.2
+        assert fronts["slope_failure"] > fronts["slope_failure_solid"] + 0.2
