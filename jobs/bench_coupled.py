@@ -39,7 +39,7 @@ def main():
     petsc_args = [a for a in petsc_args if a != "--"]
     comm = world()
     summary, stats = run_benchmark(
-        comm, args.scene, [f"run.end_time={args.end_time}", "output.every=10",
+        comm, args.scene, [f"run.end_time={args.end_time}", f"output.every={args.end_time}",
                            "output.progress=false", *args.set], petsc_args)
     if comm.rank != 0:
         return

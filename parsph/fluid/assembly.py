@@ -95,8 +95,9 @@ def density_and_surface(x, m, fluid, rho0, indptr, indices, h, dim, beta, gamma,
     depend on its pressure (singular). It gets a Dirichlet row instead, ``p_i = pin[i]``
     = the mean pressure ``p`` of its solid neighbours (the soil's, clamped at 0): a
     particle that fluidised inside the soil carries the soil's mean stress. Next to a
-    wall the PPE row is kept: it is what holds the particle off the wall. ``pin`` is 0
-    elsewhere.
+    wall the PPE row is kept (it is what holds the particle off the wall) and held to
+    the soil's pressure by its own diagonal: ``pin[i] = -(p_soil + 1)`` marks it for
+    :func:`ppe_triplets`, which adds ``diag (p_i - p_soil)``. ``pin`` is 0 elsewhere.
     """
     n = indptr.shape[0] - 1
     w0 = normalisation(h, dim)
@@ -135,10 +136,13 @@ def density_and_surface(x, m, fluid, rho0, indptr, indices, h, dim, beta, gamma,
             g2 += gs[a] * gs[a]
         free[i] = 1 if (acc < beta * rho0[i] or
                         (acc < rho0[i] and h * math.sqrt(g2) > gamma)) else 0
-        if nf < min_fluid and ns > 0 and nw == 0 and h * math.sqrt(g2) <= gamma:
+        if nf < min_fluid and ns > 0 and h * math.sqrt(g2) <= gamma:
             # a pocket inside the soil (full support, few fluid neighbours): its pressure
-            free[i] = 1
-            pin[i] = max(ps / ns, 0.0)
+            if nw == 0:
+                free[i] = 1
+                pin[i] = max(ps / ns, 0.0)
+            elif not free[i]:  # by a wall: keep the row (it holds the particle off the
+                pin[i] = -max(ps / ns, 0.0) - 1.0  # wall), held to the soil's pressure
 
 
 @njit(cache=True, inline="always")
@@ -337,6 +341,9 @@ def ppe_triplets(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim,
             source = rho0[i] * div / dt + alpha * drho / (dt * dt)
             # eq. (35) as sum a_ij (p_i - p_j) with a_ij = -(2/rho_i) m_j F_ij = -source
             rhs[i] = -s * source
+            if pin[i] < 0.0:  # a pocket by a wall: + diag (p_i - p_soil), not singular
+                rhs[i] += diag * (-pin[i] - 1.0)
+                diag *= 2.0
             rows[k] = ri
             cols[k] = ri
             vals[k] = diag
