@@ -12,6 +12,7 @@ from parsph.geometry import generate
 from parsph.kernel import smoothing_length, support_radius
 from parsph.materials import PHASE_FLUID, PHASE_SOLID, PHASE_WALL
 from parsph.pipeline import INFRASTRUCTURE, plan
+from parsph.scene import geometry_warnings
 
 
 def check(comm, scene) -> str:
@@ -51,5 +52,6 @@ def check(comm, scene) -> str:
         f"({est['bytes_per_particle']} B per particle)"
         + (f"; this node has {est['node_memory'] / 2**30:.1f} GiB" if est["node_memory"] else ""),
     ]
+    lines += [f"warning: {text}" for text in geometry_warnings(scene)]
     return "\n".join(lines)
 

@@ -37,10 +37,15 @@ class FluidNumerics:
                                      "gamma (incomplete support; 0.56 on a flat surface, 0.03 one "
                                      "layer below)", gt=0.0)
     free_surface_min_fluid: int = spec(4, doc="coupled scenes: a fluid particle with fewer "
-                                       "fluid neighbours than this, a solid neighbour and no wall "
-                                       "neighbour is an enclosed pocket (singular PPE rows): its pressure is set "
-                                       "to the mean pressure of its solid neighbours (0 = off)",
-                                       ge=0)
+                                       "fluid neighbours than this, a solid neighbour and a full "
+                                       "support is a pocket in the soil (singular PPE rows): its "
+                                       "pressure is the mean pressure of its solid neighbours "
+                                       "(held to it, by a wall; 0 = off)", ge=0)
+    surface_wall_contact: bool = spec(True, doc="a free-surface particle (p = 0, which the "
+                                      "PPE does not hold off a boundary) closer than d to wall "
+                                      "or soil particles loses its velocity towards them, and "
+                                      "slides with Coulomb friction tan(phi') of a Bingham "
+                                      "fluid (docs/iisph.md)")
     velocity_floor: float = spec(1.0, doc="v_max of eq. (49) is at least this times "
                                  "sqrt(|g| d) (a fluid at rest still gets a finite step)",
                                  ge=0.0)

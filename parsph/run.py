@@ -316,8 +316,13 @@ def _build(scene, out, comm, petsc_args, restart):
     checkpoint), partition, halo, neighbours and the scene's stages, set up."""
     from parsph import checkpoint
 
+    from parsph.scene import geometry_warnings
+
     specs = plan(scene)
     check_budget(comm, scene, specs)
+    if comm.rank == 0:
+        for text in geometry_warnings(scene):
+            log.warning(text)
     prepare_output(comm, out)
     dim, d = scene.domain.dim, scene.domain.particle_size
     h = smoothing_length(d)

@@ -87,6 +87,9 @@ class PhaseChange:
     min_support: float = spec(0.4, doc="a solid particle left with fewer than this share of its "
                               "initial reference neighbours (its neighbours fluidised) becomes "
                               "fluid too: a fragment too thin for TLSPH", ge=0.0, le=1.0)
+    fluidise_failed: bool = spec(True, doc="a solid particle whose deformation gradient would "
+                                 "invert (det F <= 0) or whose return map fails becomes fluid "
+                                 "instead of stopping the run (it has failed; docs/coupling.md)")
 
 
 @dataclass(frozen=True)
@@ -327,6 +330,43 @@ def _cross_check(scn: Scene, source: str) -> None:
             if bad:
                 _err(source, f"{key}.sides", f"unknown side {bad[0]!r}; in {dim}D the sides are "
                      f"{', '.join(SIDES[dim])}")
+
+
+def geometry_warnings(scn: Scene) -> list[str]:
+    """Warnings about a geometry the particle size does not resolve as written.
+
+    - A box wall thinner than the kernel support 2h on its thinnest axis: a particle
+      next to it sees an incomplete wall, the fluid's wall pressure and the solid's
+      contact normal are weak, and a particle can pass through it (a box floor of 0.15 m
+      at d = 0.1 m, 2h = 0.24 m, let the slope fall through). Tanks and polygons get
+      enough layers by default (``layers = 0``).
+    - A box body whose extent is not a whole number of particle sizes: the lattice
+      leaves the remainder empty at its upper side (at d = 0.0667 m the 1 m
+      ``hydrostatic`` column leaves a 0.066 m gap at the right wall, and the water
+      collapses into it instead of resting).
+    """
+    from parsph.kernel import smoothing_length, support_radius
+
+    d = scn.domain.particle_size
+    reach = support_radius(smoothing_length(d))
+    out = []
+    for wall in scn.walls:
+        if wall.shape == "box":
+            thick = float(np.min(np.array(wall.hi) - np.array(wall.lo)))
+            if thick < reach - 1e-9:
+                out.append(f"wall '{wall.name}' is {thick:g} m thick, less than the kernel "
+                           f"support 2h = {reach:g} m at d = {d:g} m: particles may pass "
+                           f"through it; make it at least {reach:g} m thick")
+    for body in scn.bodies:
+        if body.shape == "box":
+            extent = np.array(body.hi) - np.array(body.lo)
+            gap = extent - np.floor(extent / d + 1e-9) * d
+            for axis in np.flatnonzero(gap > 0.25 * d):
+                out.append(f"body '{body.name}' spans {extent[axis]:g} m along axis {axis}, "
+                           f"not a whole number of particles of d = {d:g} m: the lattice "
+                           f"leaves {gap[axis]:.3g} m empty at its upper side (a fluid "
+                           f"collapses into such a gap); choose d = extent / N")
+    return out
 
 
 def _check_phase_change(scn: Scene, source: str) -> None:

@@ -138,3 +138,48 @@ def run_on_one_and_two(comm, scene, tmpdir):
         one.Free()
     run(scene, two_dir, comm=comm, progress=False)
     return one_dir, two_dir
+
+
+LONE_ROW = """
+[scene]
+name = "lone_row"
+description = "a row of five Bingham particles sliding on a floor at 1 m/s, all on the free surface"
+
+[domain]
+dim = 2
+particle_size = 0.05
+lo = [-0.5, -0.3]
+hi = [3.0, 1.0]
+
+[run]
+end_time = 0.6
+
+[output]
+every = 0.05
+progress = false
+
+[gravity]
+g = [0.0, -9.81]
+
+[materials.debris]            # slope_failure's debris (Table 2)
+model = "bingham"
+density = 1655.0
+viscosity = 1.0e-3
+viscosity_max = 1.0e4
+cohesion = 10.0
+friction_angle = 19.5
+
+[[bodies]]
+name = "row"
+material = "debris"
+shape = "box"
+lo = [0.0, 0.0]
+hi = [0.25, 0.05]
+velocity = [1.0, 0.0]
+
+[[walls]]
+name = "floor"
+shape = "box"
+lo = [-0.5, -0.15]
+hi = [3.0, 0.0]
+"""

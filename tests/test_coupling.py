@@ -360,6 +360,51 @@ def test_phase_change_of_every_particle_at_once(comm, mpi_tmp_path):
     stage.finish(ctx)
 
 
+@pytest.mark.parametrize("fluidise", [True, False])
+def test_a_solid_particle_whose_f_would_invert_fluidises(comm, mpi_tmp_path, fluidise):
+    """A solid particle thrown into the column at 30 d per step makes its neighbours' F
+    invert: they have failed. With ``phase_change.fluidise_failed`` (the default) they keep
+    their last F and stress for the step and become fluid at its end, the run goes on;
+    without, the step stops with the inversion error on every rank (docs/coupling.md)."""
+    from decomposition.reduce import global_min, global_sum
+    from parsph.errors import NumericalError
+    from parsph.run import _build, refresh
+
+    scene = _scene(mpi_tmp_path, QUICK_COLLAPSE,
+                   [f"phase_change.fluidise_failed={str(fluidise).lower()}"])
+    ctx, specs, stages, _ = _build(scene, os.path.join(mpi_tmp_path, "out"), comm, (), None)
+    (stage,) = stages
+    p, n = ctx.particles, ctx.n_owned
+    dt = stage.max_dt(ctx)
+    solid = p["phase"][:n] == 0
+    first = global_min(comm, int(p["id"][:n][solid].min()) if solid.any() else 2 ** 62)
+    thrown = (p["id"][:n] == first) & solid
+    p["v"][:n][thrown] = [30.0 * ctx.d / dt, 0.0]  # the bottom-left corner, to the right
+    n_solid0 = global_sum(comm, int(solid.sum()))
+    if not fluidise:
+        with pytest.raises(NumericalError, match="inverted"):
+            stage.step(ctx, dt)
+        stage.finish(ctx)
+        return
+    stage.step(ctx, dt)
+    failed = int(stage.stats()["n_failed"])
+    assert failed >= 1
+    n_solid1 = global_sum(comm, int((p["phase"][:n] == 0).sum()))
+    assert n_solid1 <= n_solid0 - failed  # they (and any orphans) are fluid now
+    assert np.all(np.linalg.det(p["F"][:n][p["phase"][:n] == 0]) > 0.0)  # no inverted solid
+    ctx.time += dt
+    refresh(ctx)
+    stage.after_refresh(ctx)
+    for _ in range(5):  # and it runs on
+        dt = stage.max_dt(ctx)
+        stage.step(ctx, dt)
+        ctx.time += dt
+        refresh(ctx)
+        stage.after_refresh(ctx)
+    assert np.isfinite(p["v"][: ctx.n_owned]).all()
+    stage.finish(ctx)
+
+
 @pytest.mark.mpi(min_size=2)
 def test_phase_change_at_a_rank_boundary(comm, mpi_tmp_path):
     """A particle on the reference-partition cut, with reference neighbours on the other
@@ -434,19 +479,29 @@ def test_phase_change_one_vs_two_ranks(comm, mpi_tmp_path):
 
 def test_slope_failure_fluidises_and_runs_out_further(comm, mpi_tmp_path):
     """Section 6.2: with phase change the slope's toe runs out much further than the
-    TLSPH-only slope (which stops within ~0.1 m), at t = 0.7 s already."""
+    TLSPH-only slope (which stops within ~0.1 m), at t = 0.7 s already; the debris comes
+    to rest on the floor by t = 3 s (the scene's end). Before the wall contact of
+    free-surface fluid particles a particle was thrown out at ~1.3-1.5 s."""
     fronts = {}
-    for name in ("slope_failure_solid", "slope_failure"):
-        scene = load_scene(name, ["run.end_time=0.7", "output.progress=false"])
+    for name, end in (("slope_failure_solid", 0.7), ("slope_failure", 3.0)):
+        scene = load_scene(name, [f"run.end_time={end}", "output.progress=false"])
         out = os.path.join(mpi_tmp_path, name)
         run(scene, out, comm=comm, progress=False)
         if comm.rank == 0:
             rows = _stats(out)
-            fronts[name] = float(rows[-1]["front"])
+            at = [r for r in rows if float(r["time"]) <= 0.7 + 1e-9][-1]
+            fronts[name] = float(at["front"])
             if name == "slope_failure":
-                assert int(float(rows[-1]["n_fluidised"])) > 100
-                assert float(rows[-1]["fluidised_volume"]) == pytest.approx(
-                    int(float(rows[-1]["n_fluidised"])) * 0.05 ** 2, rel=0.01)
+                assert int(float(at["n_fluidised"])) > 100
+                last = rows[-1]
+                fluidised = int(float(last["n_fluidised"]))
+                assert float(last["fluidised_volume"]) == pytest.approx(fluidised * 0.05 ** 2,
+                                                                        rel=0.01)
+                assert fluidised > 150
+                assert 2.0 < float(last["front"]) < 3.8  # ran out, and stayed on the floor
+                ke = np.array([float(r["kinetic_energy"]) for r in rows])
+                assert ke[-1] < 1e-3 * ke.max()  # at rest
+                assert float(last["max_speed"]) < 0.5
     if comm.rank == 0:
         assert fronts["slope_failure_solid"] < 0.2
         assert fronts["slope_failure"] > fronts["slope_failure_solid"] + 0.2

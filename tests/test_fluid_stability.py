@@ -10,6 +10,7 @@ import pytest
 from parsph.io import read_frame, read_frames
 from parsph.run import run
 from parsph.scene import load_scene
+from tests.scenes import LONE_ROW, write
 from tests.test_iisph import front_positions
 
 
@@ -73,6 +74,45 @@ def test_long_hydrostatic_run_stays_at_rest(comm, mpi_tmp_path):
             assert np.sqrt(np.mean(speed ** 2)) < 0.01 * scale
             assert speed.max() < 0.05 * scale
             assert f["x"][fl, 1].max() < 1.0  # top layer starts at H - d/2: flat to d/2
+
+
+def _lone_row(comm, tmp, contact, sub):
+    path = comm.bcast(write(tmp, LONE_ROW, "lone_row.toml") if comm.rank == 0 else None)
+    scene = load_scene(path, [f"fluid.surface_wall_contact={str(contact).lower()}",
+                              "run.end_time=0.6" if contact else "run.end_time=0.4"])
+    out = os.path.join(tmp, sub)
+    run(scene, out, comm=comm, progress=False)
+    return scene, list(_frames(out)) if comm.rank == 0 else None
+
+
+def test_lone_bingham_row_slides_to_rest_on_the_floor(comm, mpi_tmp_path):
+    """Five debris particles, all free surface (p = 0), sliding on a floor at 1 m/s: the
+    PPE does not hold them off the wall, the contact rule does (fluid.surface_wall_contact,
+    docs/iisph.md): never below their resting height, and they stop after about the
+    Coulomb distance v0^2 / (2 tan(phi') g) = 0.144 m of the Bingham yield (eq. 40) with
+    the wall's normal impulse as pressure (measured 0.127 m: the no-slip viscous drag adds)."""
+    scene, frames = _lone_row(comm, mpi_tmp_path, True, "contact")
+    if comm.rank == 0:
+        d = scene.domain.particle_size
+        mu = math.tan(math.radians(scene.materials["debris"].friction_angle))
+        coulomb = 1.0 ** 2 / (2.0 * mu * 9.81)
+        for _, f in frames:
+            assert f["x"][:, 1][f["phase"] == 1].min() > 0.45 * d  # rests at d / 2
+        first, last = frames[0][1], frames[-1][1]
+        fl0, fl = first["phase"] == 1, last["phase"] == 1
+        slide = last["x"][fl, 0].max() - first["x"][fl0, 0].max()
+        assert 0.6 * coulomb < slide < 1.05 * coulomb
+        assert np.abs(last["v"][fl, 0]).max() < 0.02  # stopped (it sits with a mm bounce)
+
+
+def test_lone_bingham_row_sinks_into_the_floor_without_the_contact(comm, mpi_tmp_path):
+    """The failure the contact rule removes: at p = 0 only the wall's extrapolated pressure
+    acts on the row, too weak to hold it, and it sinks into the floor (later the PPE throws
+    it out at tens of m/s: the slope_failure run of docs/coupling.md)."""
+    _, frames = _lone_row(comm, mpi_tmp_path, False, "free")
+    if comm.rank == 0:
+        lowest = min(f["x"][:, 1][f["phase"] == 1].min() for _, f in frames)
+        assert lowest < 0.0  # below the floor's top
 
 
 @pytest.mark.parametrize("divisions", [10, 14])

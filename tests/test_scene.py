@@ -155,3 +155,19 @@ hi = [0.6, 1.1]
         load_scene(write(tmp_path, text), ["phase_change.eps_p_limit=-1"])
     with pytest.raises(SceneError, match="output.front_direction"):
         load_scene(write(tmp_path, text), ["output.front_direction=[0.0, 0.0]"])
+
+
+def test_geometry_warnings_name_thin_walls_and_misfit_bodies():
+    """A wall thinner than 2h and a box body that is not a whole number of particles get
+    a warning naming them and the fix; the built-in scenes get none."""
+    from parsph.scene import geometry_warnings
+
+    for name in builtin_names():
+        assert geometry_warnings(load_scene(name)) == [], name
+    coarse = geometry_warnings(load_scene("slope_failure", ["domain.particle_size=0.1"]))
+    assert len(coarse) == 2 and all("thick" in w and "0.24 m" in w for w in coarse)
+    assert "'floor'" in coarse[0] and "'back'" in coarse[1]
+    misfit = geometry_warnings(load_scene("hydrostatic", ["domain.particle_size=0.0667"]))
+    assert len(misfit) == 2  # both axes of the 1 m water column
+    assert all("'water'" in w and "0.0662 m empty" in w for w in misfit)
+    assert geometry_warnings(load_scene("hydrostatic", ["domain.particle_size=0.0625"])) == []

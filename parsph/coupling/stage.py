@@ -13,7 +13,8 @@ of the main set (mixed layout):
 3. TLSPH corrector on the view: :math:`\dot{\mathbf F}` from the final velocities,
    constitutive update, positions;
 4. phase change (section 3.3): owned solid rows with :math:`\varepsilon_p` past
-   ``phase_change.eps_p_limit`` become fluid rows of ``phase_change.fluid`` (id, x, v, m
+   ``phase_change.eps_p_limit`` (or whose F would have inverted in this step, left
+   un-updated, with ``phase_change.fluidise_failed``) become fluid rows of ``phase_change.fluid`` (id, x, v, m
    kept: mass, momentum and ids are conserved); the solid view (reference halo and
    lists, correction matrices) is rebuilt on every rank; the next refresh moves the new
    fluid rows to their owner by current position.
@@ -36,7 +37,7 @@ SOLID_STATE = ("x", "v", "F", "tau", "eps_e", "P", "L", "Q", "lapv", "p_c", "mod
 
 #: stats.csv columns of the coupling; ``fsi_force_*`` (N, N/m in 2D) is the net force of
 #: the fluid on the solid (eq. (45), pressure and viscous parts) before constraints.
-STATS = ("n_fluidised", "fluidised_volume", "n_solid_rank_min", "n_solid_rank_max",
+STATS = ("n_fluidised", "n_failed", "fluidised_volume", "n_solid_rank_min", "n_solid_rank_max",
          "n_fluid_rank_min", "n_fluid_rank_max", "wall_s_solid", "wall_s_fluid",
          "wall_s_phase_change")
 
@@ -58,6 +59,7 @@ class Coupled:
         names = list(ctx.scene.materials)
         self.limit = pc.eps_p_limit
         self.min_support = pc.min_support
+        self.solid.failure_fluidises = self.limit > 0.0 and pc.fluidise_failed
         self.target = names.index(pc.fluid) if pc.fluid else -1
         fluids = [m for m in ctx.materials if "iisph" in m.stages]
         # the density the fluid sees solid particles with (one fluid density per scene:
@@ -112,9 +114,11 @@ class Coupled:
     def restore(self, ctx, state) -> None:
         self.solid.restore(self.view.ctx, state.get("solid", {}))
         self._stats["n_fluidised"] = int(state.get("n_fluidised", 0))
+        self._stats["n_failed"] = int(state.get("n_failed", 0))
 
     def state(self) -> dict:
-        return {"n_fluidised": int(self._stats["n_fluidised"])}
+        return {"n_fluidised": int(self._stats["n_fluidised"]),
+                "n_failed": int(self._stats["n_failed"])}
 
     def _count(self, ctx) -> None:
         p = ctx.particles
@@ -172,7 +176,13 @@ class Coupled:
         """Section 3.3: solid rows past the plastic-strain limit become fluid."""
         p, n = ctx.particles, ctx.n_owned
         if self.limit > 0.0:
-            flag = np.flatnonzero((p["phase"][:n] == PHASE_SOLID) & (p["eps_p"][:n] > self.limit))
+            past = (p["phase"][:n] == PHASE_SOLID) & (p["eps_p"][:n] > self.limit)
+            failed = self.view.rows[self.solid.failed]  # det F <= 0: it has failed
+            n_failed = global_sum(ctx.comm, len(failed))
+            if n_failed:
+                past[failed] = True
+                self._stats["n_failed"] = int(self._stats["n_failed"]) + int(n_failed)
+            flag = np.flatnonzero(past)
             while True:  # then the fragments they leave behind, until none is left
                 count = global_sum(ctx.comm, len(flag))
                 if not count:

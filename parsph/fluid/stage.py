@@ -27,13 +27,14 @@ import numpy as np
 from decomposition.numbering import global_offset
 from decomposition.reduce import global_any, global_max, global_min, global_sum
 from parsph.fluid import assembly, rheology
+from parsph.contact import wall_contact
 from parsph.fluid.walls import wall_slip
 from parsph.materials import PHASE_FLUID
 from solvers.csr import coo_to_csr, sort_neighbours_by_row
 
 STATS = ("visc_iterations", "visc_residual", "ppe_iterations", "ppe_residual",
-         "n_free_surface", "max_divergence", "wall_s_fluid_assembly", "wall_s_fluid_solve",
-         "wall_s_visc_solve", "wall_s_ppe_solve", "wall_s_fluid_halo")
+         "n_free_surface", "fluid_contacts", "max_divergence", "wall_s_fluid_assembly",
+         "wall_s_fluid_solve", "wall_s_visc_solve", "wall_s_ppe_solve", "wall_s_fluid_halo")
 
 
 def lattice_density_ratio(h_over_d: float, dim: int) -> float:
@@ -183,7 +184,7 @@ class IISPH:
         self._t_halo += time.perf_counter() - t0
 
     def step(self, ctx, dt, coupling=None) -> None:
-        """Advance the owned fluid particles from t to t + dt (eqs. (30)-(37)).
+        r"""Advance the owned fluid particles from t to t + dt (eqs. (30)-(37)).
 
         Coupled scenes (section 5) pass ``coupling`` (:class:`Coupling`), the solid rows'
         ``v`` (owned and halo) holding their TLSPH predictor of eq. (7). Solid rows with a
@@ -293,13 +294,29 @@ class IISPH:
                                                             indices, h, dim)
                 grad[surface == 1] = corr[surface == 1]
         vnew = vs[:n] - dt * grad / rho0[:n, None]
-        p["v"][:n][own_fluid] = vnew[own_fluid]
         if own_solid.any():  # eq. (48): the reaction of the fluid pressure, eq. (45)
             mark = np.zeros(len(fluid))
             mark[:n][own_solid] = solid[:n][own_solid]
             react = assembly.coupling_pressure_acceleration(x, p["p"], m, rho, rho0, fluid, mark,
                                                             indptr, indices, h, dim)
             p["v"][:n][own_solid] = vs[:n][own_solid] + dt * react[own_solid]
+        contacts = 0
+        if self.num.surface_wall_contact:
+            # a free-surface row (p = 0, or a pocket's soil pressure) is held off a wall or
+            # the soil only by their extrapolated pressure, too weak for a lone particle:
+            # it would sink in until its density flags it interior and the PPE throws it
+            # out. Its basal friction is the Bingham yield's p tan(phi'), p from the
+            # normal impulses of the boundary's pressure and of the contact (docs/iisph.md)
+            surface = np.flatnonzero(own_fluid & (free[:n] == 1))
+            if len(surface):
+                mu = self.table["tan_phi"][p["material"][surface]]
+                push = -dt * grad[surface] / rho0[surface, None]  # the pressure impulse
+                # partners move with their v* (walls: still): the same on owned and
+                # halo rows, whatever the partition
+                moving = np.where((solid > 0)[:, None], vs, 0.0)
+                contacts = wall_contact(x, vnew, surface, surface, 1 - fluid, moving, indptr,
+                                        indices, h, d, dim, mu, push)
+        p["v"][:n][own_fluid] = vnew[own_fluid]
         p["x"][:n][own_fluid] += dt * vnew[own_fluid]
         div = assembly.divergence(x, p["v"], m, rho, fluid, indptr, indices, h, dim)
         inner = own_fluid & (free[:n] == 0)
@@ -312,6 +329,7 @@ class IISPH:
             "ppe_iterations": info_p["iterations"],
             "ppe_residual": info_p["residual_norm"],
             "n_free_surface": int(global_sum(comm, int(free[:n][own_fluid].sum()))),
+            "fluid_contacts": int(global_sum(comm, contacts)),
             "max_divergence": global_max(comm, float(np.abs(div[inner]).max()) if inner.any()
                                          else 0.0),
             "wall_s_fluid_assembly": t_asm,

@@ -29,7 +29,8 @@ from decomposition.reduce import global_max, global_sum
 from parsph.errors import NumericalError
 from parsph.materials import PHASE_SOLID
 from parsph.solid import kernels
-from parsph.solid.boundary import initial_velocity, velocity_masks, wall_contact
+from parsph.contact import wall_contact
+from parsph.solid.boundary import initial_velocity, velocity_masks
 from parsph.solid.update import CAM_CLAY, HENCKY, C, material_table, stress_terms, \
     update_particles, wave_speed
 
@@ -57,6 +58,8 @@ class TLSPH:
         self.rho0_of = np.ascontiguousarray(self.tab[:, C["rho0"]])
         self.has_cam_clay = bool(np.any(self.tab[:, C["model"]] == CAM_CLAY))
         self.has_walls = bool(ctx.scene.walls)
+        self.failure_fluidises = False  # set by the coupled stage (phase change)
+        self.failed = np.zeros(0, dtype=np.int64)  # rows that failed in the last step
         self.stats_columns = ("solid_plastic", "solid_contacts", "elastic_energy")
         if self.num.triaxial_csv:
             self.stats_columns += TRIAXIAL_COLUMNS
@@ -203,11 +206,14 @@ class TLSPH:
         ctx.update_halo(["v"])
         fdot = np.zeros((n, 3, 3))
         kernels.velocity_gradient(self._pad(v), X, self.vol, p["L"], fp, *args, fdot)
+        failed = np.zeros(n, dtype=np.uint8)
         bad, plastic = update_particles(self.tab, p["material"], sel, n, dt, fdot, p["F"],
                                         p["tau"], p["eps_e"], p["P"], p["eps_p"], p["p_c"],
-                                        p["porosity"], p["p"], dim)
+                                        p["porosity"], p["p"], failed, dim)
+        # coupled scenes with phase change: a failed particle becomes fluid (docs/coupling.md)
+        self.failed = np.flatnonzero(failed)
         error = None
-        if bad >= 0:
+        if bad >= 0 and not self.failure_fluidises:
             error = NumericalError(
                 f"TLSPH: particle id {int(p['id'][bad])} inverted (det F <= 0) or its return "
                 f"map failed at t = {ctx.time:.6g} s (rank {ctx.comm.rank}); reduce solid.cfl "
@@ -231,10 +237,15 @@ class TLSPH:
         count = 0
         rows = np.flatnonzero(solid).astype(np.int64)
         if len(xw) and len(rows):
-            xs = p["x"][:n][solid]
-            indptr, indices = build_csr(np.concatenate([xs, xw]), len(rows), ctx.radius)
-            count = wall_contact(xs, p["v"], len(rows), rows, np.ascontiguousarray(xw), indptr,
-                                 indices, ctx.h, ctx.d, ctx.dim, self.num.wall_friction)
+            xall = np.concatenate([p["x"][:n][solid], xw])
+            indptr, indices = build_csr(xall, len(rows), ctx.radius)
+            wall = np.zeros(len(xall), dtype=np.uint8)
+            wall[len(rows):] = 1
+            mu = np.full(len(rows), self.num.wall_friction)
+            push = np.zeros((len(rows), ctx.dim))
+            still = np.zeros_like(xall)  # fixed walls
+            count = wall_contact(xall, p["v"], np.arange(len(rows)), rows, wall, still, indptr,
+                                 indices, ctx.h, ctx.d, ctx.dim, mu, push)
         return global_sum(ctx.comm, count)
 
     def _elastic_energy(self, ctx) -> float:

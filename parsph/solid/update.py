@@ -96,7 +96,7 @@ def wave_speed(tab, material, pressure, porosity, sel, n, modulus):
 
 @njit(cache=True)
 def update_particles(tab, material, sel, n, dt, Fdot, F, tau, eps_e, P, eps_p, p_c,
-                     porosity, pressure, dim):
+                     porosity, pressure, failed, dim):
     """Advance F, porosity and stress of the owned solid particles by one step.
 
     Parameters
@@ -119,6 +119,8 @@ def update_particles(tab, material, sel, n, dt, Fdot, F, tau, eps_e, P, eps_p, p
     eps_p, p_c, porosity, pressure : ndarray (N,)
         Accumulated plastic strain, pre-consolidation pressure (Pa), porosity, and the
         output pressure ``-tr(sigma)/3`` (Pa, compression positive); updated in place.
+    failed : ndarray of uint8 (n,)
+        Set to 1 for the particles with det F <= 0 or a failed return (left unchanged).
     dim : int
 
     Returns
@@ -154,6 +156,7 @@ def update_particles(tab, material, sel, n, dt, Fdot, F, tau, eps_e, P, eps_p, p
             dF[2, 2] = 1.0
         J = det3(Fn)
         if not (J > 0.0) or not (det3(dF) > 0.0):
+            failed[i] = 1
             if bad < 0:
                 bad = i
             continue
@@ -168,8 +171,10 @@ def update_particles(tab, material, sel, n, dt, Fdot, F, tau, eps_e, P, eps_p, p
             mcc_trial_into(tau[i], dF, vs, row[10], row[13], work)
             pc_new, dev, dgam, it, ok = mcc_return_inplace(work, p_c[i], vs, row[10], row[11],
                                                            row[13], row[12])
-            if not ok and bad < 0:
-                bad = i
+            if not ok:
+                failed[i] = 1
+                if bad < 0:
+                    bad = i
             if dgam > 0.0:
                 plastic += 1
                 # equivalent plastic strain sqrt(2/3 d_eps_p : d_eps_p)
