@@ -38,7 +38,7 @@ def main():
     comm = world()
     d = 0.146 / args.divisions
     summary, stats = run_benchmark(
-        comm, "dam_break", [f"domain.particle_size={d:.6g}", f"run.max_steps={args.steps}",
+        comm, "dam_break", [f"domain.particle_size={d!r}", f"run.max_steps={args.steps}",
                             "output.every=0.3", "output.progress=false"], petsc_args)
     if comm.rank == 0:
         skip = slice(2, None)
