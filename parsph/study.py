@@ -128,6 +128,13 @@ def _write(out: str, rows: list) -> None:
     plot(rows, os.path.join(out, "study.png"))
 
 
+def point_labels(rows: list) -> list[str]:
+    """A label per run of the settings that vary over the study (``d`` if none does)."""
+    short = {"particle_size": "d", "cfl": "cfl", "ksp_rtol": "rtol"}
+    varied = [k for k in short if len({repr(r[k]) for r in rows}) > 1] or ["particle_size"]
+    return [", ".join(f"{short[k]}={r[k]:.3g}" for k in varied) for r in rows]
+
+
 def plot(rows: list, path: str) -> None:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -141,9 +148,8 @@ def plot(rows: list, path: str) -> None:
     ax.loglog(wall, err, "o", color="0.6", label="runs")
     order = np.argsort(wall[front])
     ax.loglog(wall[front][order], err[front][order], "o-", color="C3", label="Pareto front")
-    for r, w, e in zip(rows, wall, err):
-        ax.annotate(f"d={r['particle_size']:.3g}", (w, e), fontsize=7,
-                    textcoords="offset points", xytext=(3, 3))
+    for text, w, e in zip(point_labels(rows), wall, err):
+        ax.annotate(text, (w, e), fontsize=7, textcoords="offset points", xytext=(3, 3))
     ax.set_xlabel("wall time (s)")
     ax.set_ylabel("error (-)")
     ax.grid(True, which="both", alpha=0.3)

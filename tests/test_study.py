@@ -46,3 +46,16 @@ def test_study_writes_table_and_plot(comm, mpi_tmp_path):
         study(comm, path, out, {"ksp_rtol": [1e-6]})
     with pytest.raises(ParsphError, match="no reference"):
         study(comm, path, out, {"particle_size": [0.1]}, overrides=["run.mode=geometry"])
+
+
+def test_plot_labels_name_the_settings_that_vary():
+    """study.png labels each point with what the study varied, not always d."""
+    from parsph.study import point_labels
+
+    nan = float("nan")
+    by_d = [dict(particle_size=d, cfl=nan, ksp_rtol=nan) for d in (0.1, 0.05)]
+    assert point_labels(by_d) == ["d=0.1", "d=0.05"]
+    by_cfl = [dict(particle_size=0.01, cfl=c, ksp_rtol=1e-8) for c in (0.1, 0.4)]
+    assert point_labels(by_cfl) == ["cfl=0.1", "cfl=0.4"]
+    both = [dict(particle_size=d, cfl=0.1, ksp_rtol=r) for d, r in ((0.1, 1e-4), (0.05, 1e-8))]
+    assert point_labels(both) == ["d=0.1, rtol=0.0001", "d=0.05, rtol=1e-08"]
