@@ -178,15 +178,13 @@ class Coupled:
         if self.limit > 0.0:
             past = (p["phase"][:n] == PHASE_SOLID) & (p["eps_p"][:n] > self.limit)
             failed = self.view.rows[self.solid.failed]  # det F <= 0: it has failed
-            n_failed = global_sum(ctx.comm, len(failed))
-            if n_failed:
-                past[failed] = True
-                self._stats["n_failed"] = int(self._stats["n_failed"]) + int(n_failed)
+            past[failed] = True
             flag = np.flatnonzero(past)
-            while True:  # then the fragments they leave behind, until none is left
-                count = global_sum(ctx.comm, len(flag))
-                if not count:
-                    break
+            # one reduction for both counts (a coupled step's hot path)
+            count, n_failed = (int(c) for c in global_sum(
+                ctx.comm, np.array([len(flag), len(failed)], dtype=np.int64)))
+            self._stats["n_failed"] = int(self._stats["n_failed"]) + n_failed
+            while count:  # then the fragments they leave behind, until none is left
                 p["phase"][flag] = PHASE_FLUID
                 p["material"][flag] = self.target
                 p["fluidised"][flag] = 1
@@ -197,6 +195,7 @@ class Coupled:
                 self._stats["n_fluidised"] = int(self._stats["n_fluidised"]) + int(count)
                 self._build_view(ctx)  # reference halo and lists without them
                 flag = self._orphans()
+                count = global_sum(ctx.comm, len(flag))
         self._count(ctx)
 
     def stats(self) -> dict:
