@@ -2,10 +2,11 @@
 
 Runs the built-in ``dam_break`` scene at a given particle size for a fixed number of
 steps and prints its figures (long CSV format of ``jobs/benchlib.py``): PPE and viscous
-KSP iterations (median
-over the steps), seconds per step split into fluid assembly (numba triplets + CSR),
-solves (KSPSolve), the stage's halo refreshes and the infrastructure (migrate, halo,
-neighbours), and particle-steps per second per core. Steps 1-2 (JIT warm-up, first
+KSP iterations (median over the steps; 0 viscous iterations = the explicit predictor of
+``fluid.viscous_solver = auto``), seconds per step split into fluid assembly (numba
+kernels, CSR blocks and PETSc matrices), solves (KSPSolve), the stage's halo refreshes
+and the infrastructure (migrate, halo, neighbours), and particle-steps per second per
+core. Steps 1-2 (JIT warm-up, first
 matrices) are excluded.
 
     .venv/bin/python jobs/bench_iisph.py --divisions 20 --steps 30
@@ -33,13 +34,15 @@ def main():
     ap.add_argument("--divisions", type=int, default=20, help="a / d (dam_break: a = 0.146 m)")
     ap.add_argument("--steps", type=int, default=30)
     ap.add_argument("--csv", default=None, help="append the row to this CSV file")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="scene override, e.g. fluid.viscous_solver=implicit (repeatable)")
     args, petsc_args = ap.parse_known_args()
     petsc_args = [a for a in petsc_args if a != "--"]
     comm = world()
     d = 0.146 / args.divisions
     summary, stats = run_benchmark(
         comm, "dam_break", [f"domain.particle_size={d!r}", f"run.max_steps={args.steps}",
-                            "output.every=0.3", "output.progress=false"], petsc_args)
+                            "output.every=0.3", "output.progress=false", *args.set], petsc_args)
     if comm.rank == 0:
         skip = slice(2, None)
 
@@ -59,7 +62,8 @@ def main():
                    "s_per_step_fluid_halo": float(np.median(col("wall_s_fluid_halo"))),
                    "s_per_step_infrastructure": float(np.median(infra)),
                    "particle_steps_per_s_per_core": n / s_step / comm.size}
-        record(args.csv, "iisph_dam_break", "parsph", 2, n, comm.size, metrics)
+        name = "iisph_dam_break" + "".join(f"[{item}]" for item in args.set)
+        record(args.csv, name, "parsph", 2, n, comm.size, metrics)
 
 
 if __name__ == "__main__":

@@ -25,6 +25,8 @@ NP=$(wc -l < "${PBS_NODEFILE:-/dev/null}" 2>/dev/null || echo 2)
 [ -f "$VENV/bin/activate" ] && source "$VENV/bin/activate"
 export NUMBA_CACHE_DIR="${NUMBA_CACHE_DIR:-$HOME/.cache/parsph/numba}"
 export H5PY_ALWAYS_USE_MPI=1
+# one thread per rank (PETSc's OpenBLAS/OpenMP workers would spin on the ranks' cores)
+export OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}" OPENBLAS_NUM_THREADS="${OPENBLAS_NUM_THREADS:-1}"
 
 args=(run "$SCENE" --out "$OUT" --no-progress)
 for kv in ${SET:-}; do args+=(--set "$kv"); done

@@ -17,4 +17,11 @@ _os.environ.setdefault(
 # always writes collectively, also on one rank.
 _os.environ.setdefault("H5PY_ALWAYS_USE_MPI", "1")
 
+# One thread per MPI rank. PETSc links OpenBLAS and OpenMP (hypre); left alone, each
+# starts a worker per core that spins in sched_yield after every call, on the core of the
+# other rank: 2-rank IISPH solves ran 15-20 % slower (docs/scaling.md). Only effective
+# when parsph is imported before numpy and PETSc; scripts/env.sh sets them for jobs.
+for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+    _os.environ.setdefault(_name, "1")
+
 __version__ = "0.1.0"

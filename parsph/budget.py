@@ -9,8 +9,9 @@ from parsph.geometry import estimate_count
 #: lists (int32 per neighbour) and the cell list, by dimension.
 BASE_BYTES = {2: 100 + 4 * 24 + 40, 3: 120 + 4 * 70 + 40}
 #: Extra bytes per particle of each stage (its fields and, for implicit stages, matrices).
-#: iisph: ~90 B of fields; the viscous triplets (dim^2 per neighbour pair, 24 B each), the
-#: CSR copy and the PETSc matrix dominate: ~6 kB in 2D, ~30 kB in 3D at h = 1.2 d.
+#: iisph: ~90 B of fields; the viscous system's CSR block (dim^2 per neighbour pair, 12 B
+#: each), PETSc's and hypre's copies and the AMG hierarchy dominate: ~6 kB in 2D, ~30 kB in
+#: 3D at h = 1.2 d (an upper bound: water at the CFL step skips the viscous system).
 STAGE_BYTES = {"kinematics": 0, "density": 8, "iisph": 16000, "tlsph": 1200, "coupled": 17200}
 #: A scene may use at most this share of a node's memory.
 MEMORY_SHARE = 0.8

@@ -70,6 +70,16 @@ class FluidNumerics:
     viscous_term: str = spec("paper", doc="viscous operator: paper (eq. (34)) | morris (Morris et "
                              "al. 1997; 1 % in shear on a lattice where eq. (34) is 20 % weak)",
                              choices=("paper", "morris"))
+    viscous_solver: str = spec("auto", doc="viscous predictor (30): implicit (a PETSc solve "
+                               "each step, as the paper) | explicit (the same operator at v^beta, "
+                               "no matrix) | auto (explicit while the largest viscous number "
+                               "nu dt / h^2 of the fluid is below explicit_viscous_number, else "
+                               "implicit; coupled steps are always implicit; docs/iisph.md)",
+                               choices=("auto", "implicit", "explicit"))
+    explicit_viscous_number: float = spec(0.01, doc="auto: largest nu dt / h^2 solved "
+                                          "explicitly (water at the CFL step: ~1e-3; a Bingham "
+                                          "fluid: 1e2 and more; forward Euler is stable below "
+                                          "~0.1)", gt=0.0, le=0.1)
     clamp_negative_pressure: bool = spec(True, doc="set negative PPE pressures to 0 before the "
                                          "corrector (Koshizuka & Oka 1996)")
     clamp_wall_pressure: bool = spec(True, doc="also set negative wall (ghost) pressures to 0; "

@@ -207,6 +207,12 @@ class LinearSystem:
         return self._mat
 
     @property
+    def index_dtype(self) -> np.dtype:
+        """numpy dtype of PETSc's indices (``PetscInt``: int32, or int64 in a 64-bit build);
+        CSR blocks of this type reach PETSc without a conversion."""
+        return np.dtype(self._PETSc.IntType)
+
+    @property
     def ksp(self):
         """The ``PETSc.KSP`` (type, tolerances and preconditioner after the options)."""
         return self._ksp

@@ -11,6 +11,8 @@ import tempfile
 import pytest
 
 os.environ.setdefault("H5PY_ALWAYS_USE_MPI", "1")
+for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"):  # one thread per rank
+    os.environ.setdefault(_name, "1")
 os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(os.path.expanduser("~"), ".cache", "parsph", "numba"))
 
 

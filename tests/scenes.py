@@ -183,3 +183,24 @@ shape = "box"
 lo = [-0.5, -0.15]
 hi = [3.0, 0.0]
 """
+
+
+def dense_system(kernel, *args, n_points, dim=1):
+    """Run a CSR kernel of ``parsph.fluid.assembly`` (``viscous_csr``, ``ppe_csr``) on
+    rows numbered from 0 and return its matrix dense, with the right-hand side; checks
+    on the way that every row's columns are sorted and distinct."""
+    import numpy as np
+
+    n = n_points * dim
+    cap = dim * dim * (n_points * n_points + n_points)
+    ptr = np.zeros(n + 1, dtype=np.int32)
+    cols = np.empty(cap, dtype=np.int32)
+    vals = np.empty(cap)
+    nnz, rhs = kernel(*args, 0, ptr, cols, vals)
+    assert ptr[-1] == nnz and np.all(np.diff(ptr) >= 0)
+    A = np.zeros((n, n))
+    for r in range(n):
+        c = cols[ptr[r]:ptr[r + 1]]
+        assert np.all(np.diff(c) > 0), f"row {r}: columns {c} not sorted and distinct"
+        A[r, c] = vals[ptr[r]:ptr[r + 1]]
+    return A, rhs

@@ -138,3 +138,19 @@ def test_bad_input_never_touches_earlier_output(tmp_path):
         assert r.returncode == 2, r.stderr
     after = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
     assert after == before
+
+
+def test_one_thread_per_rank_unless_asked():
+    """Importing parsph first keeps OpenBLAS (and OpenMP) to one thread per process:
+    their idle workers spin in sched_yield on the cores of the other ranks. A value the
+    user set is kept."""
+    code = ("import os, parsph, numpy as np; a = np.ones((400, 400)); a @ a; "
+            "print(len(os.listdir('/proc/self/task')), os.environ['OMP_NUM_THREADS'])")
+    env = {k: v for k, v in _env().items() if k not in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env=env, timeout=60, check=True).stdout.split()
+    assert out == ["1", "1"]
+    env["OMP_NUM_THREADS"] = "2"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env=env, timeout=60, check=True).stdout.split()
+    assert out[1] == "2"

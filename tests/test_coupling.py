@@ -9,7 +9,7 @@ from parsph.fluid import assembly
 from parsph.kernel import fac_grad, smoothing_length
 from parsph.run import run
 from parsph.scene import load_scene
-from tests.scenes import last_frame, run_on_one_and_two, write
+from tests.scenes import dense_system, last_frame, run_on_one_and_two, write
 
 RHO_W, G = 1000.0, 9.81
 
@@ -249,10 +249,8 @@ def test_viscous_exchange_between_phases_conserves_momentum():
     slip = np.zeros(4, dtype=np.uint8)
     row = np.arange(4, dtype=np.int64)
     dt, g = 1e-2, np.array([0.0, -9.81])
-    rows, cols, vals, rhs = assembly.viscous_triplets(x, v, m, rho, nu, fluid, scale, slip, row,
-                                                      indptr, indices, h, 2, dt, g, False)
-    A = np.zeros((8, 8))
-    np.add.at(A, (rows, cols), vals)
+    A, rhs = dense_system(assembly.viscous_csr, x, v, m, rho, nu, fluid, scale, slip, row,
+                          indptr, indices, h, 2, dt, g, False, n_points=4, dim=2)
     assert rhs[2] == pytest.approx(v[2])  # solid: its predictor (eq. 7), no extra dt g
     assert rhs[0] == pytest.approx(v[0] + dt * g)
     vstar = np.random.default_rng(3).normal(size=(4, 2))

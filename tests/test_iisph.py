@@ -9,10 +9,11 @@ from mpi4py import MPI
 
 from parsph.fluid import assembly, references, rheology
 from parsph.fluid.references import front_positions  # noqa: F401 (used by the stability tests)
+from parsph.io import read_frame, read_frames, read_stats
 from parsph.kernel import fac_grad, smoothing_length, w
 from parsph.run import run
 from parsph.scene import load_scene
-from tests.scenes import last_frame, run_on_one_and_two
+from tests.scenes import by_id, dense_system, last_frame, run_on_one_and_two
 
 
 def _run(comm, tmp, name, overrides, sub="out"):
@@ -47,11 +48,9 @@ def test_ppe_matrix_is_eq35_with_wall_extrapolation():
     vs = np.zeros((4, 2))
     vs[0] = [0.01, 0.0]  # v* of particle 0 only: divergence source of row 1
     g = np.array([0.0, -9.81])
-    rows, cols, vals, rhs = assembly.ppe_triplets(x, vs, m, rho, rho0, fluid, free, row, indptr,
-                                                  indices, h, 2, dt, alpha, d, g,
-                                                  np.zeros((4, 2)), np.zeros(4))
-    A = np.zeros((4, 4))
-    np.add.at(A, (rows, cols), vals)
+    A, rhs = dense_system(assembly.ppe_csr, x, vs, m, rho, rho0, fluid, free, row, indptr,
+                          indices, h, 2, dt, alpha, d, g, np.zeros((4, 2)), np.zeros(4), False,
+                          False, n_points=4)
     for i in (0, 1):  # fluid rows: -s_i * eq. (35), s_i = rho_i d^2 / (2 rho0_i)
         s = assembly.ppe_row_scale(rho[i], rho0[i], d)
         for j in range(4):
@@ -85,10 +84,8 @@ def test_viscous_predictor_is_eq34(morris):
     slip = np.zeros(4, dtype=np.uint8)
     g = np.array([0.0, -9.81])
     solid = np.zeros(4)
-    rows, cols, vals, rhs = assembly.viscous_triplets(x, v, m, rho, nu, fluid, solid, slip, row,
-                                                      indptr, indices, h, dim, dt, g, morris)
-    A = np.zeros((8, 8))
-    np.add.at(A, (rows, cols), vals)
+    A, rhs = dense_system(assembly.viscous_csr, x, v, m, rho, nu, fluid, solid, slip, row,
+                          indptr, indices, h, dim, dt, g, morris, n_points=4, dim=dim)
     # apply A to an arbitrary v*: row 0 must be v*_0 - dt * (viscous term (34) at v*)
     rng = np.random.default_rng(1)
     vstar = rng.normal(size=(4, 2))
@@ -112,6 +109,65 @@ def test_viscous_predictor_is_eq34(morris):
     # no-slip wall row: v_w + sum_f W v_f / sum W = 2 v_wall (= 0)
     wts = np.array([w(np.linalg.norm(x[3] - x[f]), h, 2) for f in range(3)])
     assert lhs[3] == pytest.approx(vstar[3] + (wts[:, None] * vstar[:3]).sum(0) / wts.sum())
+
+
+@pytest.mark.parametrize("morris", [False, True], ids=["eq34", "morris"])
+def test_explicit_viscous_predictor_is_the_implicit_operator_at_v(morris):
+    """``viscous_explicit`` is the same operator as ``viscous_csr`` applied to the present
+    velocity (forward instead of backward Euler): for the fluid rows,
+    v* = rhs + u - A u with u the velocities and the wall's ghost velocity; and
+    ``ghost_velocity`` solves the no-slip wall row of A on its own."""
+    d, h, x, m, fluid, free, rho, rho0, indptr, indices, row = _small_set()
+    dim, dt = 2, 1e-2
+    nu = np.array([0.1, 0.3, 0.2, 0.0])
+    v = np.array([[0.1, 0.0], [0.0, 0.2], [-0.1, 0.05], [0.02, 0.0]])
+    slip = np.zeros(4, dtype=np.uint8)
+    g = np.array([0.0, -9.81])
+    A, rhs = dense_system(assembly.viscous_csr, x, v, m, rho, nu, fluid, np.zeros(4), slip, row,
+                          indptr, indices, h, dim, dt, g, morris, n_points=4, dim=dim)
+    ghost = np.zeros((4, dim))
+    assembly.ghost_velocity(x, v, fluid, slip, indptr, indices, h, dim, ghost)
+    u = v.copy()
+    u[3] = ghost[3]
+    Au = (A @ u.reshape(-1)).reshape(4, dim)
+    assert Au[3] == pytest.approx(rhs[3], rel=1e-12)  # the wall row holds for the ghost
+    vstar = assembly.viscous_explicit(x, v, ghost, m, rho, nu, fluid, slip, indptr, indices, h,
+                                      dim, dt, g, morris)
+    for i in (0, 1, 2):
+        assert vstar[i] == pytest.approx(rhs[i] + u[i] - Au[i], rel=1e-12, abs=1e-15)
+        assert np.abs(vstar[i] - (v[i] + dt * g)).max() > 1e-4  # the viscous term acts
+    assert np.array_equal(vstar[3], v[3])  # walls keep their velocity
+
+
+def test_auto_viscous_solver_is_explicit_for_water_and_agrees_with_implicit(comm, mpi_tmp_path):
+    """A dam break of a fluid 1000x as viscous as water (nu = 1e-3 m^2/s): ``auto`` takes
+    the explicit predictor (no viscous solve) in the steps whose viscous number
+    nu dt / h^2 is below 0.01 and the implicit one in the others, and its run matches the
+    all-implicit one (the paper's) to within a tenth of what the viscosity itself changes
+    (against water)."""
+    over = ["domain.particle_size=0.0146", "run.end_time=0.1", "output.every=0.05",
+            "materials.water.viscosity=1e-3"]
+    runs = {}
+    for name, extra in (("auto", []), ("implicit", ["fluid.viscous_solver=implicit"]),
+                        ("water", ["materials.water.viscosity=1e-6"])):
+        _, out, _ = _run(comm, mpi_tmp_path, "dam_break", over + extra, sub=name)
+        runs[name] = out
+    if comm.rank == 0:
+        auto = read_stats(os.path.join(runs["auto"], "stats.csv"))
+        implicit = read_stats(os.path.join(runs["implicit"], "stats.csv"))
+        # per step: implicit while zeta >= 0.01 (the first steps, at the largest dt)
+        explicit = auto["viscous_number"] < 0.01
+        assert np.array_equal(auto["visc_iterations"] == 0, explicit)
+        assert explicit.sum() > 0.5 * len(explicit) and not explicit.all()
+        assert np.all(implicit["visc_iterations"] > 0)
+        x = {name: last_frame(out)["x"] for name, out in runs.items()}
+        assert auto["time"][-1] == implicit["time"][-1] == pytest.approx(0.1)
+        viscous_effect = np.abs(x["water"] - x["implicit"]).max()
+        scheme = np.abs(x["auto"] - x["implicit"]).max()
+        print(f"max |x| differences / d: viscosity {viscous_effect / 0.0146:.2e}, "
+              f"explicit vs implicit {scheme / 0.0146:.2e}")
+        assert viscous_effect > 1e-3 * 0.0146
+        assert scheme < 0.1 * viscous_effect
 
 
 def test_strain_rate_of_simple_shear_and_bingham_viscosity():

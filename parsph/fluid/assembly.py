@@ -1,4 +1,4 @@
-r"""Numba kernels of the IISPH step: triplets of the two implicit systems and the explicit sums.
+r"""Numba kernels of the IISPH step: CSR blocks of the two implicit systems and the explicit sums.
 
 Every kernel loops over the owned rows ``0 .. n_owned - 1`` of the CSR neighbour lists
 (owned rows first, halo rows after) and writes *global* indices: ``row[j]`` is the
@@ -53,8 +53,8 @@ from numba import njit
 
 from parsph.kernel import fac_grad, normalisation, w
 
-__all__ = ["density_and_surface", "viscous_triplets", "ppe_triplets", "divergence",
-           "pressure_gradient", "pressure_gradient_corrected", "ppe_row_scale",
+__all__ = ["density_and_surface", "viscous_csr", "viscous_explicit", "ghost_velocity", "ppe_csr",
+           "divergence", "pressure_gradient", "pressure_gradient_corrected", "ppe_row_scale",
            "coupling_pressure_acceleration", "has_fluid_neighbour"]
 
 #: eta^2 / h^2 of the viscous term (avoids 1/r^2 blowing up for coincident particles).
@@ -97,7 +97,7 @@ def density_and_surface(x, m, fluid, rho0, indptr, indices, h, dim, beta, gamma,
     particle that fluidised inside the soil carries the soil's mean stress. Next to a
     wall the PPE row is kept (it is what holds the particle off the wall) and held to
     the soil's pressure by its own diagonal: ``pin[i] = -(p_soil + 1)`` marks it for
-    :func:`ppe_triplets`, which adds ``diag (p_i - p_soil)``. ``pin`` is 0 elsewhere.
+    :func:`ppe_csr`, which adds ``diag (p_i - p_soil)``. ``pin`` is 0 elsewhere.
     """
     n = indptr.shape[0] - 1
     w0 = normalisation(h, dim)
@@ -162,13 +162,70 @@ def fluid_weight_sum(x, fluid, indptr, indices, i, h, dim):
 
 
 @njit(cache=True)
-def viscous_triplets(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, dim, dt,
-                     g, morris):
-    """Triplets and right-hand side of the implicit viscous predictor (30)/(34).
+def _slot(cols, vals, base, span, bw, dim, t, last, P):
+    """Slot of partner point ``P`` in the ``dim`` scalar rows of one point.
 
-    Returns ``(rows, cols, vals, rhs)`` with global scalar indices (block size ``dim``)
-    and ``rhs`` of shape (n_owned, dim). See the module docstring for the rows. With
-    ``morris`` the operator is Morris et al. (1997) instead of eq. (34):
+    The rows are written side by side, row ``a`` from ``base + a span``; slot ``s`` of
+    row ``a`` is the ``bw`` entries from ``base + a span + s bw``, columns ``P dim + b``
+    (``bw == dim``: a full block) or ``P dim + a`` (``bw == 1``: the diagonal of the
+    block). Partners arrive in non-decreasing ``P`` (neighbour lists sorted by global
+    row), so a repeated ``P`` (a periodic image, or the diagonal) merges into the last
+    slot. Returns ``(slot, t, last)`` with ``t`` slots used and ``last`` partner.
+    """
+    if t > 0 and last == P:
+        return t - 1, t, last
+    for a in range(dim):
+        for b in range(bw):
+            q = base + a * span + t * bw + b
+            cols[q] = P * dim + (b if bw == dim else a)
+            vals[q] = 0.0
+    return t, t + 1, P
+
+
+@njit(cache=True)
+def _close_rows(cols, vals, out_ptr, base, span, bw, dim, t, local):
+    """Pack the ``dim`` rows of a point (row ``a`` moved from ``base + a span`` to
+    ``base + a t bw``) and set their row pointers; returns the next free position."""
+    length = t * bw
+    for a in range(1, dim):
+        src = base + a * span
+        dst = base + a * length
+        for q in range(length):
+            cols[dst + q] = cols[src + q]
+            vals[dst + q] = vals[src + q]
+    for a in range(dim):
+        out_ptr[local * dim + a + 1] = base + (a + 1) * length
+    return base + dim * length
+
+
+@njit(cache=True)
+def _viscous_pair(m, rho, nu, fluid, i, j, r2, h, dim, dt, eta2, morris):
+    """Coefficient ``c`` (<= 0) of the pair (i, j) at distance squared ``r2`` in the
+    viscous term of row ``i``, times dt: eq. (34) is ``c r r^T (v_i - v_j)``, Morris et
+    al. (1997) ``c (v_i - v_j)``, ``r = x_i - x_j``. A boundary j takes row i's
+    viscosity; a boundary row i its fluid partner's (coupling)."""
+    nui = nu[i] if fluid[i] else nu[j]
+    nuj = nu[j] if fluid[j] else nui
+    f = fac_grad(math.sqrt(r2), h, dim)
+    if morris:
+        return dt * m[j] * (rho[i] * nui + rho[j] * nuj) / (rho[i] * rho[j]) * f \
+            * r2 / (r2 + eta2)
+    return dt * m[j] * 2.0 * (dim + 2) * (nui + nuj) / ((rho[i] + rho[j]) * (r2 + eta2)) * f
+
+
+@njit(cache=True)
+def viscous_csr(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, dim, dt,
+                g, morris, first, out_ptr, out_cols, out_vals):
+    """CSR block and right-hand side of the implicit viscous predictor (30)/(34).
+
+    Writes the owned scalar rows (block size ``dim``: component ``a`` of global point
+    ``P`` is row ``P dim + a``) straight into ``out_ptr`` (``n_local + 1``), ``out_cols``
+    and ``out_vals`` (capacity ``dim^2 (pairs + n_owned)``): columns sorted and distinct
+    in each row, no triplets and no sort (the neighbour lists must be sorted by
+    ``row``, :func:`solvers.csr.sort_neighbours_by_row`). ``first`` is the first global
+    point of this rank. Returns ``(nnz, rhs)`` with ``rhs`` of shape (n_owned, dim). See
+    the module docstring for the rows. With ``morris`` the operator is Morris et al.
+    (1997) instead of eq. (34):
     ``sum_j m_j (rho_i nu_i + rho_j nu_j) / (rho_i rho_j) F_ij r^2 / (r^2 + eta^2) v_ij``
     (component-wise; accurate in shear on a lattice with h = 1.2 d, see docs/iisph.md).
 
@@ -177,103 +234,174 @@ def viscous_triplets(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices,
     side ``v[i]`` is the solid predictor of eq. (7) (the caller passes it), and it
     couples to its fluid neighbours only, with the pair coefficient the fluid row sees
     (pair viscosity ``2 nu_f``) times ``solid[i]`` = (mass the fluid sees) / (true mass),
-    so the viscous forces between the phases are equal and opposite. Fluid rows see solid neighbours as no-slip walls whose velocity is
-    the solid's own unknown (eq. (43)). Rows with ``row[i] < 0`` (type I solids, walls
-    without fluid neighbours) are not in the system.
+    so the viscous forces between the phases are equal and opposite. Fluid rows see
+    solid neighbours as no-slip walls whose velocity is the solid's own unknown
+    (eq. (43)). Rows with ``row[i] < 0`` (type I solids, walls without fluid neighbours)
+    are not in the system. A fluid or solid row under eq. (34) stores full ``dim x dim``
+    blocks (zeros included); the other rows the diagonal of each block.
     """
     n = indptr.shape[0] - 1
-    npairs = indptr[n]
-    cap = dim * dim * (npairs + n)
-    rows = np.empty(cap, dtype=np.int64)
-    cols = np.empty(cap, dtype=np.int64)
-    vals = np.empty(cap)
     rhs = np.zeros((n, dim))
     eta2 = ETA2 * h * h
     diag = np.empty((dim, dim))
     r = np.empty(dim)
+    out_ptr[0] = 0
     k = 0
     for i in range(n):
-        if row[i] < 0:
+        ri = row[i]
+        if ri < 0:
             continue
-        ri = row[i] * dim
+        moving = fluid[i] or solid[i] > 0.0
+        wsum = 0.0
+        if not moving and not slip[i]:
+            wsum = fluid_weight_sum(x, fluid, indptr, indices, i, h, dim)
+        ghost = wsum > 0.0
+        bw = dim if moving and not morris else 1
+        span = (indptr[i + 1] - indptr[i] + 1) * bw
+        base = k
+        t = 0
+        last = -1
+        dslot = -1
         diag[:, :] = 0.0
         for a in range(dim):
             diag[a, a] = 1.0
-        if fluid[i] or solid[i] > 0.0:
+        if moving:
             for a in range(dim):
                 rhs[i, a] = v[i, a] + dt * g[a] if fluid[i] else v[i, a]
+        elif ghost:
+            for a in range(dim):  # no-slip ghost velocity: v_w + sum_f w_wf v_f = 2 v_wall
+                rhs[i, a] = 2.0 * v[i, a]
+        else:
+            for a in range(dim):
+                rhs[i, a] = v[i, a]
+        if moving or ghost:
             for p in range(indptr[i], indptr[i + 1]):
                 j = indices[p]
-                if row[j] < 0 or (not fluid[j] and (slip[j] or solid[i] > 0.0)):
+                rj = row[j]
+                if rj < 0:
+                    continue
+                if moving:
+                    if not fluid[j] and (slip[j] or solid[i] > 0.0):
+                        continue
+                elif not fluid[j]:
+                    continue
+                if dslot < 0 and rj >= ri:
+                    dslot, t, last = _slot(out_cols, out_vals, base, span, bw, dim, t, last, ri)
+                s, t, last = _slot(out_cols, out_vals, base, span, bw, dim, t, last, rj)
+                if ghost:
+                    r2 = 0.0
+                    for a in range(dim):
+                        e = x[i, a] - x[j, a]
+                        r2 += e * e
+                    wij = w(math.sqrt(r2), h, dim) / wsum
+                    for a in range(dim):
+                        out_vals[base + a * span + s] += wij
                     continue
                 r2 = 0.0
                 for a in range(dim):
                     r[a] = x[i, a] - x[j, a]
                     r2 += r[a] * r[a]
-                nui = nu[i] if fluid[i] else nu[j]
-                nuj = nu[j] if fluid[j] else nui
-                f = fac_grad(math.sqrt(r2), h, dim) * (1.0 if fluid[i] else solid[i])
-                rj = row[j] * dim
+                c = _viscous_pair(m, rho, nu, fluid, i, j, r2, h, dim, dt, eta2, morris) \
+                    * (1.0 if fluid[i] else solid[i])
                 if morris:
-                    c = dt * m[j] * (rho[i] * nui + rho[j] * nuj) / (rho[i] * rho[j]) * f \
-                        * r2 / (r2 + eta2)
                     for a in range(dim):
                         diag[a, a] -= c
-                        rows[k] = ri + a
-                        cols[k] = rj + a
-                        vals[k] = c
-                        k += 1
+                        out_vals[base + a * span + s] += c
                     continue
-                kk = m[j] * 2.0 * (dim + 2) * (nui + nuj) / ((rho[i] + rho[j]) * (r2 + eta2))
-                c = dt * kk * f  # <= 0
                 for a in range(dim):
                     for b in range(dim):
                         e = c * r[a] * r[b]
                         diag[a, b] -= e
-                        rows[k] = ri + a
-                        cols[k] = rj + b
-                        vals[k] = e
-                        k += 1
-        elif not slip[i]:
-            # no-slip ghost velocity: v_w + sum_f w_wf v_f = 2 v_wall
-            wsum = fluid_weight_sum(x, fluid, indptr, indices, i, h, dim)
-            if wsum > 0.0:
-                for p in range(indptr[i], indptr[i + 1]):
-                    j = indices[p]
-                    if fluid[j]:
-                        r2 = 0.0
-                        for a in range(dim):
-                            d = x[i, a] - x[j, a]
-                            r2 += d * d
-                        wij = w(math.sqrt(r2), h, dim) / wsum
-                        rj = row[j] * dim
-                        for a in range(dim):
-                            rows[k] = ri + a
-                            cols[k] = rj + a
-                            vals[k] = wij
-                            k += 1
-                for a in range(dim):
-                    rhs[i, a] = 2.0 * v[i, a]
-            else:
-                for a in range(dim):
-                    rhs[i, a] = v[i, a]
-        else:
-            for a in range(dim):
-                rhs[i, a] = v[i, a]
+                        out_vals[base + a * span + s * dim + b] += e
+        if dslot < 0:
+            dslot, t, last = _slot(out_cols, out_vals, base, span, bw, dim, t, last, ri)
         for a in range(dim):
-            for b in range(dim):
-                if a == b or diag[a, b] != 0.0:
-                    rows[k] = ri + a
-                    cols[k] = ri + b
-                    vals[k] = diag[a, b]
-                    k += 1
-    return rows[:k], cols[:k], vals[:k], rhs
+            if bw == dim:
+                for b in range(dim):
+                    out_vals[base + a * span + dslot * dim + b] += diag[a, b]
+            else:
+                out_vals[base + a * span + dslot] += diag[a, a]
+        k = _close_rows(out_cols, out_vals, out_ptr, base, span, bw, dim, t, ri - first)
+    return k, rhs
 
 
 @njit(cache=True)
-def ppe_triplets(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt, alpha,
-                 d, ga, acc_w, pin, corrected=False, expansion=False):
-    r"""Triplets and right-hand side of the stabilised PPE (32) with (35), (36) and walls.
+def ghost_velocity(x, v, fluid, slip, indptr, indices, h, dim, out):
+    """No-slip ghost velocity of the owned wall rows from the fluid's present velocity,
+    ``out[w] = 2 v_w - sum_f W_wf v_f / sum_f W_wf`` (Adami et al. 2012, eqs. (22)-(23)):
+    the wall rows of :func:`viscous_csr` solved on their own. Wall rows without fluid
+    neighbours get ``v_w``; fluid and free-slip rows are left as they are."""
+    n = indptr.shape[0] - 1
+    for i in range(n):
+        if fluid[i] or slip[i]:
+            continue
+        wsum = fluid_weight_sum(x, fluid, indptr, indices, i, h, dim)
+        for a in range(dim):
+            out[i, a] = 2.0 * v[i, a] if wsum > 0.0 else v[i, a]
+        if wsum > 0.0:
+            for p in range(indptr[i], indptr[i + 1]):
+                j = indices[p]
+                if fluid[j]:
+                    r2 = 0.0
+                    for a in range(dim):
+                        e = x[i, a] - x[j, a]
+                        r2 += e * e
+                    wij = w(math.sqrt(r2), h, dim) / wsum
+                    for a in range(dim):
+                        out[i, a] -= wij * v[j, a]
+
+
+@njit(cache=True)
+def viscous_explicit(x, v, v_ghost, m, rho, nu, fluid, slip, indptr, indices, h, dim, dt, g,
+                     morris):
+    r"""Explicit viscous predictor of the owned fluid rows: eq. (30) with the viscous term
+    (34) (or Morris et al. 1997) evaluated at :math:`\mathbf{v}^\beta`,
+
+    .. math:: \mathbf{v}^*_i = \mathbf{v}_i + \Delta t\,\mathbf{g}
+              + \sum_j c_{ij} \mathbf{r}_{ij} \mathbf{r}_{ij}^T (\mathbf{v}_i - \mathbf{v}_j),
+
+    with the coefficients of :func:`viscous_csr` (no-slip walls at their ``v_ghost``,
+    free-slip walls left out). It is one step of forward instead of backward Euler on the
+    same operator; the two differ by O(zeta^2) for a viscous number
+    :math:`\zeta = \nu \Delta t / h^2`, and forward Euler is stable below about 0.1
+    (Morris et al. 1997). Other rows: ``v``. Shape (n_owned, dim)."""
+    n = indptr.shape[0] - 1
+    out = np.empty((n, dim))
+    eta2 = ETA2 * h * h
+    for i in range(n):
+        for a in range(dim):
+            out[i, a] = v[i, a] + dt * g[a] if fluid[i] else v[i, a]
+        if not fluid[i]:
+            continue
+        for p in range(indptr[i], indptr[i + 1]):
+            j = indices[p]
+            fj = fluid[j]
+            if not fj and slip[j]:
+                continue
+            r2 = 0.0
+            dr = 0.0
+            for a in range(dim):
+                e = x[i, a] - x[j, a]
+                r2 += e * e
+                dr += (v[i, a] - (v[j, a] if fj else v_ghost[j, a])) * e
+            c = _viscous_pair(m, rho, nu, fluid, i, j, r2, h, dim, dt, eta2, morris)
+            for a in range(dim):
+                if morris:
+                    out[i, a] += c * (v[i, a] - (v[j, a] if fj else v_ghost[j, a]))
+                else:
+                    out[i, a] += c * (x[i, a] - x[j, a]) * dr
+    return out
+
+
+@njit(cache=True)
+def ppe_csr(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt, alpha,
+            d, ga, acc_w, pin, corrected, expansion, first, out_ptr, out_cols, out_vals):
+    r"""CSR block and right-hand side of the stabilised PPE (32) with (35), (36) and walls.
+
+    Writes the owned rows straight into ``out_ptr`` (``n_local + 1``), ``out_cols`` and
+    ``out_vals`` (capacity ``pairs + n_owned``), columns sorted and distinct in each row
+    (neighbour lists sorted by ``row``); ``first`` is the first global row of this rank.
+    Returns ``(nnz, rhs)``, ``rhs`` of shape (n_owned,).
 
     ``vs`` is the predicted velocity v* of all rows (boundary rows: their own velocity
     plus ``dt g``, see ``docs/iisph.md``; type-II solid rows: their predictor
@@ -287,37 +415,55 @@ def ppe_triplets(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim,
     :math:`\mathbf{L}_i` as in :func:`pressure_gradient_corrected`: a linear pressure
     is then harmonic even where the support is truncated (the layers under the free
     surface; cf. Schwaiger 2008, Fatehi & Manzari 2011), which (35) alone is not.
-    Returns ``(rows, cols, vals, rhs)`` (global scalar rows, ``rhs`` of shape (n_owned,)).
     """
     n = indptr.shape[0] - 1
-    npairs = indptr[n]
-    cap = npairs + n
-    rows = np.empty(cap, dtype=np.int64)
-    cols = np.empty(cap, dtype=np.int64)
-    vals = np.empty(cap)
     rhs = np.zeros(n)
     ev = np.zeros(dim)
     L = np.zeros((dim, dim))
+    out_ptr[0] = 0
     k = 0
     for i in range(n):
         ri = row[i]
         if ri < 0:
             continue
-        if fluid[i] and not free[i]:
+        base = k
+        t = 0
+        last = -1
+        dslot = -1
+        diag = 1.0
+        interior = fluid[i] and not free[i]
+        wsum = 0.0 if fluid[i] else fluid_weight_sum(x, fluid, indptr, indices, i, h, dim)
+        s = 0.0
+        div = 0.0
+        use_corr = False
+        if interior:
             s = rho[i] * d * d / (2.0 * rho0[i])
-            div = 0.0
             diag = 0.0
-            use_corr = False
             if corrected:
                 use_corr = _truncation_vector(x, m, rho, indptr, indices, i, h, dim, ev, L)
+        if interior or wsum > 0.0:
+            acc = 0.0
             for p in range(indptr[i], indptr[i + 1]):
                 j = indices[p]
+                if not interior and not fluid[j]:
+                    continue
+                rj = row[j]
+                if dslot < 0 and rj >= ri:
+                    dslot, t, last = _slot(out_cols, out_vals, base, 0, 1, 1, t, last, ri)
+                slot, t, last = _slot(out_cols, out_vals, base, 0, 1, 1, t, last, rj)
                 r2 = 0.0
                 dvr = 0.0
+                gr = 0.0
                 for a in range(dim):
                     e = x[i, a] - x[j, a]
                     r2 += e * e
                     dvr += (vs[j, a] - vs[i, a]) * e
+                    gr += (ga[a] - acc_w[i, a]) * e
+                if not interior:  # wall row: Adami et al. (2012), eq. (27)
+                    wij = w(math.sqrt(r2), h, dim) / wsum
+                    out_vals[base + slot] -= wij
+                    acc += wij * rho[j] * gr
+                    continue
                 f = fac_grad(math.sqrt(r2), h, dim)
                 div += m[j] * dvr * f
                 c = -s * 2.0 / rho[i] * m[j] * f  # >= 0
@@ -330,55 +476,28 @@ def ppe_triplets(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim,
                         eb += ev[a] * la
                     c -= 2.0 * s * m[j] / rho[j] * f * eb
                 diag += c
-                rows[k] = ri
-                cols[k] = row[j]
-                vals[k] = -c
-                k += 1
-            div /= rho[i]
-            # density-error term of eq. (32) for compression only: under-density near
-            # the free surface is kernel truncation, not expansion (docs/iisph.md)
-            drho = rho0[i] - rho[i] if expansion else min(rho0[i] - rho[i], 0.0)
-            source = rho0[i] * div / dt + alpha * drho / (dt * dt)
-            # eq. (35) as sum a_ij (p_i - p_j) with a_ij = -(2/rho_i) m_j F_ij = -source
-            rhs[i] = -s * source
-            if pin[i] < 0.0:  # a pocket by a wall: + diag (p_i - p_soil), not singular
-                rhs[i] += diag * (-pin[i] - 1.0)
-                diag *= 2.0
-            rows[k] = ri
-            cols[k] = ri
-            vals[k] = diag
-            k += 1
-        elif fluid[i]:  # free surface: p = 0; an enclosed pocket: p = pin
-            rows[k] = ri
-            cols[k] = ri
-            vals[k] = 1.0
-            rhs[i] = pin[i]
-            k += 1
-        else:
-            rows[k] = ri
-            cols[k] = ri
-            vals[k] = 1.0
-            k += 1
-            wsum = fluid_weight_sum(x, fluid, indptr, indices, i, h, dim)
-            if wsum > 0.0:
-                acc = 0.0
-                for p in range(indptr[i], indptr[i + 1]):
-                    j = indices[p]
-                    if fluid[j]:
-                        r2 = 0.0
-                        gr = 0.0
-                        for a in range(dim):
-                            e = x[i, a] - x[j, a]
-                            r2 += e * e
-                            gr += (ga[a] - acc_w[i, a]) * e
-                        wij = w(math.sqrt(r2), h, dim) / wsum
-                        rows[k] = ri
-                        cols[k] = row[j]
-                        vals[k] = -wij
-                        k += 1
-                        acc += wij * rho[j] * gr
+                out_vals[base + slot] -= c
+            if interior:
+                div /= rho[i]
+                # density-error term of eq. (32) for compression only: under-density near
+                # the free surface is kernel truncation, not expansion (docs/iisph.md)
+                drho = rho0[i] - rho[i] if expansion else min(rho0[i] - rho[i], 0.0)
+                source = rho0[i] * div / dt + alpha * drho / (dt * dt)
+                # eq. (35) as sum a_ij (p_i - p_j) with a_ij = -(2/rho_i) m_j F_ij = -source
+                rhs[i] = -s * source
+                if pin[i] < 0.0:  # a pocket by a wall: + diag (p_i - p_soil), not singular
+                    rhs[i] += diag * (-pin[i] - 1.0)
+                    diag *= 2.0
+            else:
                 rhs[i] = acc
-    return rows[:k], cols[:k], vals[:k], rhs
+        elif fluid[i]:  # free surface: p = 0; an enclosed pocket: p = pin
+            rhs[i] = pin[i]
+        if dslot < 0:
+            dslot, t, last = _slot(out_cols, out_vals, base, 0, 1, 1, t, last, ri)
+        out_vals[base + dslot] += diag
+        k = base + t
+        out_ptr[ri - first + 1] = k
+    return k, rhs
 
 
 @njit(cache=True)

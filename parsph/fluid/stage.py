@@ -30,9 +30,9 @@ from parsph.fluid import assembly, rheology
 from parsph.contact import wall_contact
 from parsph.fluid.walls import wall_slip
 from parsph.materials import PHASE_FLUID
-from solvers.csr import coo_to_csr, sort_neighbours_by_row
+from solvers.csr import sort_neighbours_by_row
 
-STATS = ("visc_iterations", "visc_residual", "ppe_iterations", "ppe_residual",
+STATS = ("viscous_number", "visc_iterations", "visc_residual", "ppe_iterations", "ppe_residual",
          "n_free_surface", "fluid_contacts", "max_divergence", "wall_s_fluid_assembly",
          "wall_s_fluid_solve", "wall_s_visc_solve", "wall_s_ppe_solve", "wall_s_fluid_halo")
 
@@ -120,6 +120,7 @@ class IISPH:
         p["wall_slip"][:n] = wall_slip(ctx.scene, p["body"][:n], ~fluid)
         self.les = self.num.smagorinsky * self.num.les_width * ctx.h
         self._ppe = self._visc = None
+        self._buffers = {}
         self._n_rows = -1
         self._dt_cfl = 0.0
         self._stats = {k: 0.0 for k in STATS}
@@ -139,6 +140,20 @@ class IISPH:
                                       ksp_type="gmres", rtol=self.num.visc_rtol, **tol)
             self._n_rows = n
         return self._ppe, self._visc
+
+    def _csr_buffers(self, system, capacity):
+        """Work arrays ``(indptr, cols, values)`` for a CSR block of ``system``'s owned rows
+        with room for ``capacity`` entries, kept from step to step (fresh arrays of this
+        size each step cost as much in page faults as the kernel that fills them); grown
+        by a quarter when too small. ``cols`` has PETSc's index type."""
+        ptr, cols, vals = self._buffers.get(system.prefix, (None, None, None))
+        if ptr is None or ptr.size != system.n_local + 1:
+            ptr = np.zeros(system.n_local + 1, dtype=system.index_dtype)
+        if cols is None or cols.size < capacity:
+            size = max(int(capacity), int(1.25 * cols.size) if cols is not None else 0)
+            cols, vals = np.empty(size, dtype=system.index_dtype), np.empty(size)
+        self._buffers[system.prefix] = ptr, cols, vals
+        return ptr, cols, vals
 
     def destroy(self) -> None:
         """Free the PETSc objects (collective)."""
@@ -240,23 +255,43 @@ class IISPH:
         self._halo(ctx, ["nu"])
 
         g = np.asarray(ctx.body_acceleration(ctx.time), dtype=np.float64)
-        t0 = time.perf_counter()
-        rows, cols, vals, rhs = assembly.viscous_triplets(
-            x, p["v"], m, rho, p["nu"], fluid, solid, slip, row, indptr, indices, h, dim, dt, g,
-            self.num.viscous_term == "morris")
-        visc.assemble_csr(*coo_to_csr(rows, cols, vals, visc.offset, visc.n_local))
-        t_asm += time.perf_counter() - t0
-        vstar, info_v = visc.solve(rhs[act], x0=p["v"][:n][act])
         own_fluid = fluid[:n] == 1
         own_solid = (solid[:n] > 0) & act  # type II
         wall = act & ~own_fluid & (solid[:n] == 0)
+        morris = self.num.viscous_term == "morris"
+        zeta = global_max(ctx.comm, float(p["nu"][:n][own_fluid].max()) * dt / (h * h)
+                          if own_fluid.any() else 0.0)
+        mode = self.num.viscous_solver
+        explicit = not coupled and (mode == "explicit" or (
+            mode == "auto" and zeta < self.num.explicit_viscous_number))
         vs = p["v_star"]
         vs[:n] = p["v"][:n] + dt * g  # wall rows: wall velocity + dt g (docs/iisph.md)
-        vs[:n][solid[:n] > 0] = p["v"][:n][solid[:n] > 0]  # solids: their predictor (7)
-        full = np.zeros((n, dim))
-        full[act] = vstar
-        vs[:n][own_fluid | own_solid] = full[own_fluid | own_solid]
-        p["v_ghost"][:n][wall] = full[wall]
+        if explicit:  # zeta << 1: forward Euler on the operator of eq. (34), no matrix
+            t0 = time.perf_counter()
+            assembly.ghost_velocity(x, p["v"], fluid, slip, indptr, indices, h, dim,
+                                    p["v_ghost"])
+            t_asm += time.perf_counter() - t0
+            self._halo(ctx, ["v_ghost"])
+            t0 = time.perf_counter()
+            vexp = assembly.viscous_explicit(x, p["v"], p["v_ghost"], m, rho, p["nu"], fluid,
+                                             slip, indptr, indices, h, dim, dt, g, morris)
+            vs[:n][own_fluid] = vexp[own_fluid]
+            t_asm += time.perf_counter() - t0
+            info_v = dict(iterations=0, residual_norm=0.0, time_s=0.0)
+        else:
+            t0 = time.perf_counter()
+            ptr, cols, vals = self._csr_buffers(visc, dim * dim * (indptr[n] + n))
+            nnz, rhs = assembly.viscous_csr(
+                x, p["v"], m, rho, p["nu"], fluid, solid, slip, row, indptr, indices, h, dim, dt,
+                g, morris, visc.offset // dim, ptr, cols, vals)
+            visc.assemble_csr(ptr, cols[:nnz], vals[:nnz])
+            t_asm += time.perf_counter() - t0
+            vstar, info_v = visc.solve(rhs[act], x0=p["v"][:n][act])
+            vs[:n][solid[:n] > 0] = p["v"][:n][solid[:n] > 0]  # solids: their predictor (7)
+            full = np.zeros((n, dim))
+            full[act] = vstar
+            vs[:n][own_fluid | own_solid] = full[own_fluid | own_solid]
+            p["v_ghost"][:n][wall] = full[wall]
         self._halo(ctx, ["v_star"])
 
         t0 = time.perf_counter()
@@ -265,12 +300,13 @@ class IISPH:
         alpha = self.num.alpha * min(1.0, (dt / self._dt_cfl) ** 2) if self._dt_cfl > 0 \
             else self.num.alpha
         acc = solid_acc if coupled else np.zeros((n, dim))  # fixed walls: a_w = 0
-        rows, cols, vals, rhs = assembly.ppe_triplets(
+        ptr, cols, vals = self._csr_buffers(ppe, indptr[n] + n)
+        nnz, rhs = assembly.ppe_csr(
             x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt,
             alpha, d, g, np.ascontiguousarray(acc), pin, self.num.ppe_laplacian == "corrected",
             self.num.density_correction == "both" or
-            (self.num.density_correction == "auto" and not confined))
-        ppe.assemble_csr(*coo_to_csr(rows, cols, vals, ppe.offset, ppe.n_local))
+            (self.num.density_correction == "auto" and not confined), ppe.offset, ptr, cols, vals)
+        ppe.assemble_csr(ptr, cols[:nnz], vals[:nnz])
         t_asm += time.perf_counter() - t0
         pres, info_p = ppe.solve(rhs[act], x0=p["p"][:n][act])
         if self.num.clamp_negative_pressure:  # MPS practice (Koshizuka & Oka 1996)
@@ -324,6 +360,7 @@ class IISPH:
 
         comm = ctx.comm
         self._stats = {
+            "viscous_number": zeta,
             "visc_iterations": info_v["iterations"],
             "visc_residual": info_v["residual_norm"],
             "ppe_iterations": info_p["iterations"],
