@@ -73,8 +73,9 @@ def migrate(comm, fields: dict, dest) -> dict:
     -------
     dict of str to ndarray
         The rows this rank owns afterwards, ordered by source rank, then by the original
-        local order on the source. On one rank the input arrays are returned unchanged
-        (not copied).
+        local order on the source. On one rank, and on every rank when no row changes
+        rank, the input arrays are returned unchanged (not copied); otherwise only the
+        rows that leave are communicated.
 
     Raises
     ------
@@ -103,7 +104,10 @@ def migrate(comm, fields: dict, dest) -> dict:
         return dict(fields)
 
     sig = field_signature(fields)
-    agree = np.array([sig, -sig, 1 if problem else 0], dtype=np.int64)
+    dest = dest.astype(np.int64, copy=False)
+    stay = dest == comm.rank
+    n_move = 0 if problem else n - int(stay.sum())
+    agree = np.array([sig, -sig, 1 if problem else 0, n_move], dtype=np.int64)
     comm.Allreduce(MPI.IN_PLACE, agree, op=MPI.MAX)
     if agree[2]:
         # Every rank is here: agree on the first failing rank's message.
@@ -113,9 +117,12 @@ def migrate(comm, fields: dict, dest) -> dict:
                          "shapes; pass the same set on every rank (zero-length arrays on "
                          "an empty rank)")
 
-    dest = dest.astype(np.int64, copy=False)
-    order = np.argsort(dest, kind="stable")
-    send_counts = np.bincount(dest, minlength=size).astype(np.int32)
+    if agree[3] == 0:  # no row changes rank anywhere: nothing to copy
+        return dict(fields)
+    # only the rows that leave travel; the staying ones are spliced in at this rank's place
+    move = np.flatnonzero(~stay)
+    order = move[np.argsort(dest[move], kind="stable")]
+    send_counts = np.bincount(dest[move], minlength=size).astype(np.int32)
     recv_counts = np.empty(size, dtype=np.int32)
     comm.Alltoall(send_counts, recv_counts)
     send_displ = np.zeros(size, dtype=np.int32)
@@ -137,6 +144,7 @@ def migrate(comm, fields: dict, dest) -> dict:
                                [byte_view(recv), (recv_counts, recv_displ), rowtype])
             finally:
                 rowtype.Free()
-        out[name] = recv
+        before = int(recv_displ[comm.rank])  # rows from lower ranks (none from this one)
+        out[name] = np.concatenate([recv[:before], a[stay], recv[before:]])
     # Keep the caller's key order.
     return {name: out[name] for name in fields}

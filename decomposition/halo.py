@@ -211,6 +211,9 @@ class Halo:
                                f"communicator {size}; rebuild it with RCB.build(comm, ...)")
         raise_if_any(comm, error)
 
+        if size == 1 and not box.any_periodic:  # no other rank and no image: no halo
+            empty = np.zeros(0, dtype=np.int64)
+            return cls._from_flat(comm, empty, np.zeros(1, dtype=np.int64), None, x.shape[0])
         lo_all, hi_all = rcb.subboxes()
         my_lo, my_hi = lo_all[me], hi_all[me]
         glo, ghi = np.asarray(box.lo), np.asarray(box.hi)

@@ -59,6 +59,9 @@ class ParticleSet:
         n = len(next(iter(halo.values()))) if halo else 0
         for name, arr in self.data.items():
             own = arr[: self.n_owned]
+            if n == 0:  # no halo (one rank, or isolated): no copy of the owned rows
+                self.data[name] = own
+                continue
             extra = halo.get(name)
             if extra is None:
                 extra = np.zeros((n,) + own.shape[1:], dtype=own.dtype)
