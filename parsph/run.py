@@ -235,10 +235,16 @@ def _time_step(ctx, stages, next_frame: float, end: float) -> float:
     dt = fixed if fixed > 0 else min([s.max_dt(ctx) for s in stages] + [math.inf])
     if not math.isfinite(dt):
         dt = ctx.scene.output.every
-    # Land exactly on frame times and the end time.
+    # Land exactly on frame times and the end time, without a sliver of a step: when
+    # the target is between one and two steps away, two equal steps. A step of 1e-3 dt
+    # would make the projection's pressure (the divergence over dt) a spike, and it is the
+    # pressure the frame records (hydrostatic at d = 0.05: 2 rho g H at the floor).
     target = min(next_frame, end)
-    if ctx.time + dt > target - 1e-12 * max(1.0, target):
-        dt = target - ctx.time
+    remaining = target - ctx.time
+    if dt > remaining - 1e-12 * max(1.0, target):
+        dt = remaining
+    elif dt < remaining < 2.0 * dt:
+        dt = 0.5 * remaining
     return dt
 
 

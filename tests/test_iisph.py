@@ -213,16 +213,34 @@ def test_hydrostatic_pressure(comm, mpi_tmp_path):
 
 
 def test_hydrostatic_at_rest_after_one_second(comm, mpi_tmp_path):
+    """After 1 s (frames at 0.3, 0.6, 0.9, 1.0 s: steps cut to land on them) the pressure
+    is still within 2 % of rho g (H - y) and the water at rest."""
     _, out, _ = _run(comm, mpi_tmp_path, "hydrostatic",
-                     ["domain.particle_size=0.05", "run.end_time=1.0",
-                      "output.every=0.5"])
+                     ["domain.particle_size=0.025", "run.end_time=1.0", "output.every=0.3"])
     if comm.rank == 0:
         f = last_frame(out)
+        err = references.hydrostatic_error(f, 1000.0, 9.81, 1.0)
+        assert err.max() < 0.02 and np.sqrt(np.mean(err ** 2)) < 0.015
         fl = f["phase"] == 1
         v = f["v"][fl]
         scale = math.sqrt(9.81 * 1.0)  # sqrt(g H)
         assert np.sqrt((v ** 2).sum(1).mean()) < 0.003 * scale
-        assert f["x"][fl, 1].max() < 1.0 + 0.05 and f["x"][fl, 1].min() > 0.0
+        assert f["x"][fl, 1].max() < 1.0 + 0.025 and f["x"][fl, 1].min() > 0.0
+
+
+def test_landing_on_a_frame_leaves_no_pressure_spike(comm, mpi_tmp_path):
+    """d = 0.05: 0.1 s is 14.007 CFL steps. Landing with a step of 0.007 dt made the
+    projection's pressure (divergence / dt) 2 rho g H at the floor in the frame; two
+    equal steps instead keep it hydrostatic."""
+    scene, out, _ = _run(comm, mpi_tmp_path, "hydrostatic",
+                         ["domain.particle_size=0.05", "run.end_time=0.1", "output.every=0.1"])
+    if comm.rank == 0:
+        dts = read_stats(os.path.join(out, "stats.csv"))["dt"]
+        assert dts.min() > 0.4 * dts.max()  # no sliver
+        f = last_frame(out)
+        fl = f["phase"] == 1
+        floor = fl & (f["x"][:, 1] < 0.05)
+        assert f["p"][floor].mean() == pytest.approx(1000.0 * 9.81 * (1.0 - 0.025), rel=0.05)
 
 
 @pytest.mark.parametrize("name", ["poiseuille", "bingham_poiseuille"])
