@@ -7,7 +7,9 @@ neighbour lists within 2h of the current positions, owned rows first, halo after
 2. summation density (33) and free-surface flag (:math:`\rho_i < \beta \rho_0`);
 3. strain rate (39), Bingham viscosity (40) (+ eddy viscosity (41) if asked);
 4. implicit viscous predictor (30)/(34) for :math:`\mathbf{v}^*` (``visc_`` system,
-   block size ``dim``, GMRES + BoomerAMG), wall ghost velocities as extra unknowns;
+   block size ``dim``, GMRES + BoomerAMG), wall ghost velocities as extra unknowns; or,
+   with ``fluid.viscous_solver = "auto"`` and a viscous number below
+   ``fluid.explicit_viscous_number``, the same operator applied to the present velocity;
 5. stabilised PPE (32)/(35)/(36) (``ppe_`` system, GMRES + BoomerAMG), free surface
    :math:`p = 0`, wall pressure extrapolated from the fluid (Adami et al. 2012) as
    extra unknowns;
@@ -144,8 +146,8 @@ class IISPH:
     def _csr_buffers(self, system, capacity):
         """Work arrays ``(indptr, cols, values)`` for a CSR block of ``system``'s owned rows
         with room for ``capacity`` entries, kept from step to step (fresh arrays of this
-        size each step cost as much in page faults as the kernel that fills them); grown
-        by a quarter when too small. ``cols`` has PETSc's index type."""
+        size would be allocated and page-faulted anew every step); grown by a quarter
+        when too small. ``cols`` has PETSc's index type."""
         ptr, cols, vals = self._buffers.get(system.prefix, (None, None, None))
         if ptr is None or ptr.size != system.n_local + 1:
             ptr = np.zeros(system.n_local + 1, dtype=system.index_dtype)
