@@ -349,8 +349,7 @@ class LinearSystem:
             Row pointers of the owned rows (local row ``i`` is global row ``offset + i``),
             ``indptr[0] == 0``.
         cols : numpy.ndarray of int, shape (indptr[-1],)
-            Global column indices, sorted and distinct within each row
-            (:func:`solvers.csr.sort_csr_rows` makes them so).
+            Global column indices, sorted and distinct within each row.
         values : numpy.ndarray of float64, shape (indptr[-1],)
             Matrix entries.
 
@@ -391,6 +390,7 @@ class LinearSystem:
             or not np.array_equal(last["indices"], cols))
         rebuild = _agree(self.comm, error, changed) or self._mat is None
         if rebuild:
+            # copies: the pattern is kept, and callers reuse their arrays step to step
             self._build_csr(indptr.astype(int_type), cols.astype(int_type), values)
         else:
             self._mat.setValuesCSR(last["indptr"], last["indices"], values,

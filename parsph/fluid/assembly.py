@@ -332,23 +332,25 @@ def ghost_velocity(x, v, fluid, slip, indptr, indices, h, dim, out):
     the wall rows of :func:`viscous_csr` solved on their own. Wall rows without fluid
     neighbours get ``v_w``; fluid and free-slip rows are left as they are."""
     n = indptr.shape[0] - 1
+    acc = np.empty(dim)
     for i in range(n):
         if fluid[i] or slip[i]:
             continue
-        wsum = fluid_weight_sum(x, fluid, indptr, indices, i, h, dim)
+        wsum = 0.0  # one pass: sum_f W_wf and sum_f W_wf v_f together
+        acc[:] = 0.0
+        for p in range(indptr[i], indptr[i + 1]):
+            j = indices[p]
+            if fluid[j]:
+                r2 = 0.0
+                for a in range(dim):
+                    e = x[i, a] - x[j, a]
+                    r2 += e * e
+                wij = w(math.sqrt(r2), h, dim)
+                wsum += wij
+                for a in range(dim):
+                    acc[a] += wij * v[j, a]
         for a in range(dim):
-            out[i, a] = 2.0 * v[i, a] if wsum > 0.0 else v[i, a]
-        if wsum > 0.0:
-            for p in range(indptr[i], indptr[i + 1]):
-                j = indices[p]
-                if fluid[j]:
-                    r2 = 0.0
-                    for a in range(dim):
-                        e = x[i, a] - x[j, a]
-                        r2 += e * e
-                    wij = w(math.sqrt(r2), h, dim) / wsum
-                    for a in range(dim):
-                        out[i, a] -= wij * v[j, a]
+            out[i, a] = 2.0 * v[i, a] - acc[a] / wsum if wsum > 0.0 else v[i, a]
 
 
 @njit(cache=True)
