@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import numpy as np
 from mpi4py import MPI
+from numba import njit
 
 from decomposition.box import Box
 from decomposition.comm import raise_if_any
@@ -67,6 +68,29 @@ def _lex_less(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     for s in range(d - 2, -1, -1):
         less = (a[:, s] < b[:, s]) | ((a[:, s] == b[:, s]) & less)
     return less
+
+
+@njit(cache=True)
+def _descend(x, axis, cut, child, rank, out):
+    """Owner of each row of ``x``: walk the tree from the root, at each inner node
+    comparing the point with the cut lexicographically from the node's axis on (the
+    order of :func:`_lex_less` on :func:`_permute`-d rows)."""
+    n, dim = x.shape
+    for i in range(n):
+        node = 0
+        while axis[node] >= 0:
+            a = axis[node]
+            side = 1  # right unless x < cut in the rotated lexicographic order
+            for s in range(dim):
+                c = (a + s) % dim
+                if x[i, c] < cut[node, c]:
+                    side = 0
+                    break
+                if x[i, c] > cut[node, c]:
+                    break
+            node = child[node, side]
+        out[i] = rank[node]
+    return out
 
 
 def _allreduce(comm, a: np.ndarray, op) -> np.ndarray:
@@ -334,16 +358,8 @@ class RCB:
         if x.ndim != 2 or x.shape[1] != self.domain.dim:
             raise ValueError(f"RCB.owner: positions have shape {x.shape}; pass an "
                              f"(N, {self.domain.dim}) array (m)")
-        node = np.zeros(x.shape[0], dtype=np.int64)
-        for _ in range(self.depth):
-            idx = np.nonzero(self._axis[node] >= 0)[0]
-            if idx.size == 0:
-                break
-            nd = node[idx]
-            axes = self._axis[nd].astype(np.int64)
-            less = _lex_less(_permute(x[idx], axes), _permute(self._cut[nd], axes))
-            node[idx] = self._child[nd, np.where(less, 0, 1)]
-        return self._rank[node].astype(np.int32)
+        return _descend(np.ascontiguousarray(x), self._axis, self._cut, self._child,
+                        self._rank, np.empty(x.shape[0], dtype=np.int32))
 
     def subbox(self, rank: int):
         """Closed sub-box of ``rank``: ``(lo, hi)`` float64 arrays (m), clipped to the box.

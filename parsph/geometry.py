@@ -49,17 +49,54 @@ def _counts(lo, hi, d):
     return np.maximum(np.floor((np.asarray(hi) - np.asarray(lo)) / d + 1e-9).astype(np.int64), 0)
 
 
-class _Lattice:
-    """A lattice (origin, counts) and an inside test for one body or wall."""
+#: Lattices with at most this many candidates are counted exactly by :meth:`_Lattice.kept`;
+#: larger ones by a sample of this many candidates.
+_COUNT_EXACT = 1 << 21
 
-    def __init__(self, origin, counts, inside):
+
+class _Lattice:
+    """A lattice (origin, counts) and an inside test for one body or wall.
+
+    ``exact_count`` (optional) returns the number of candidates inside without testing
+    them (a tank: closed form); otherwise :meth:`kept` tests them, or a sample of them.
+    """
+
+    def __init__(self, origin, counts, inside, exact_count=None):
         self.origin = np.asarray(origin, dtype=float)
         self.counts = np.asarray(counts, dtype=np.int64)
         self.inside = inside
+        self._exact_count = exact_count
 
     @property
     def total(self) -> int:
+        """Candidates: every lattice point of the bounding box."""
         return int(np.prod(self.counts)) if len(self.counts) else 0
+
+    def points(self, idx, d):
+        """Positions (m) of the lattice candidates with flat indices ``idx``."""
+        return self.origin + (np.stack(np.unravel_index(idx, tuple(self.counts)), axis=1) + 0.5) * d
+
+    def kept(self, d: float) -> int:
+        """Particles this lattice generates, without generating them (one rank, no MPI).
+
+        Exact for unfiltered boxes and tanks, and for filtered lattices of at most
+        ``_COUNT_EXACT`` candidates. Larger filtered lattices (polygons, heightmaps at
+        fine particle sizes) are sampled: the kept fraction of ``_COUNT_EXACT`` random
+        candidates (fixed seed) times the total, plus four standard deviations of that
+        estimate, so that it is an upper bound in all but a 3e-5 tail.
+        """
+        total = self.total
+        if self.inside is None or total == 0:
+            return total
+        if self._exact_count is not None:
+            return int(self._exact_count())
+        if total <= _COUNT_EXACT:
+            return sum(int(self.inside(self.points(np.arange(a, min(a + _CHUNK, total)), d)).sum())
+                       for a in range(0, total, _CHUNK))
+        idx = np.random.default_rng(12345).integers(0, total, size=_COUNT_EXACT)
+        frac = float(self.inside(self.points(idx, d)).mean())
+        sigma = math.sqrt(max(frac * (1.0 - frac), 1.0 / _COUNT_EXACT) / _COUNT_EXACT)
+        return min(total, int(math.ceil((frac + 4.0 * sigma) * total)))
 
 
 def _lattice(scene: Scene, item, is_wall: bool) -> _Lattice:
@@ -87,7 +124,21 @@ def _lattice(scene: Scene, item, is_wall: bool) -> _Lattice:
                     keep &= ~above
             return keep & outside_any
 
-        return _Lattice(origin, n_in + 2 * layers, inside)
+        def exact_count():
+            # per axis the lattice is [below: layers | inside: n_in | above: layers]; a
+            # point is kept when it is outside on some axis and on no axis beyond an
+            # open side: sum over the 3**dim classes of the product of the class widths
+            total = 0
+            for cls in np.ndindex(*(3,) * dim):
+                if all(c == 1 for c in cls):
+                    continue  # the interior
+                if any((c == 0 and names[2 * ax] not in sides)
+                       or (c == 2 and names[2 * ax + 1] not in sides) for ax, c in enumerate(cls)):
+                    continue
+                total += int(np.prod([n_in[ax] if c == 1 else layers for ax, c in enumerate(cls)]))
+            return total
+
+        return _Lattice(origin, n_in + 2 * layers, inside, exact_count)
     if shape == "polygon":
         verts = np.array(item.vertices, dtype=float)
         lo, hi = verts.min(axis=0), verts.max(axis=0)
@@ -130,9 +181,15 @@ def _lattice(scene: Scene, item, is_wall: bool) -> _Lattice:
 
 
 def estimate_count(scene: Scene) -> int:
-    """Upper bound of the particle count (lattice candidates), without generating."""
-    return sum(_lattice(scene, it, False).total for it in scene.bodies) + \
-        sum(_lattice(scene, it, True).total for it in scene.walls)
+    """The particle count of a scene, without generating it (see :meth:`_Lattice.kept`).
+
+    Exact for boxes and tanks and for small filtered lattices; a sampled upper bound for
+    large polygons and heightmaps. (The lattice candidates, which this used to return,
+    overcount a hollow tank by its interior: 5.6x for ``dam_break``.)
+    """
+    d = scene.domain.particle_size
+    return sum(_lattice(scene, it, False).kept(d) for it in scene.bodies) + \
+        sum(_lattice(scene, it, True).kept(d) for it in scene.walls)
 
 
 def _generate_item(comm, scene: Scene, lat: _Lattice, first_id: int):
@@ -144,8 +201,7 @@ def _generate_item(comm, scene: Scene, lat: _Lattice, first_id: int):
     parts = []
     for a in range(start, stop, _CHUNK):
         idx = np.arange(a, min(a + _CHUNK, stop), dtype=np.int64)
-        multi = np.stack(np.unravel_index(idx, tuple(lat.counts)), axis=1)
-        x = lat.origin + (multi + 0.5) * d
+        x = lat.points(idx, d)
         if lat.inside is not None:
             x = x[lat.inside(x)]
         parts.append(x)

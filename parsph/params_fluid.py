@@ -92,6 +92,12 @@ class FluidNumerics:
     visc_rtol: float = spec(1e-8, doc="relative tolerance of the viscous predictor solve "
                             "(visc_ksp_rtol)", gt=0.0, lt=1.0)
     max_it: int = spec(500, doc="maximum Krylov iterations of either solve", gt=0)
+    preconditioner_reuse: int = spec(4, doc="solves that share one AMG set-up while the rows "
+                                     "are the same particles (1 = a fresh set-up every step); "
+                                     "a fresh one when the iterations grow by half, and "
+                                     "particles change rank only every this many steps unless "
+                                     "they stray d/2 beyond their sub-domain "
+                                     "(docs/iisph.md)", ge=1, le=50)
     smagorinsky: float = spec(0.2, doc="Smagorinsky constant C_s of eq. (41)", ge=0.0)
     les_width: float = spec(0.1, doc="filter width Delta of eq. (41) in units of h "
                             "(the paper: Delta = 0.1 h)", gt=0.0)

@@ -24,7 +24,7 @@ from decomposition import collective, raise_if_any, world
 from decomposition.box import Box
 from decomposition.exchange import migrate
 from decomposition.halo import Halo, coupled_halo
-from decomposition.partition import RCB, imbalance
+from decomposition.partition import RCB
 from decomposition.reduce import global_any, global_max, global_min, global_sum
 from parsph.budget import check_budget
 from parsph.errors import NumericalError, ParsphError
@@ -63,6 +63,13 @@ class Context:
     time: float = 0.0
     step: int = 0
     timers: dict = field(default_factory=dict)
+    #: Lagged migration (current layout with a fluid): an owned particle may stray this
+    #: far (m) beyond its rank's sub-box before it must move; the halo is this much wider.
+    skin: float = 0.0
+    #: ... and strays move every this many steps (when the AMG set-up is renewed) and at
+    #: every sync point (a frame, a checkpoint or the end: see :func:`run`).
+    migrate_every: int = 1
+    sync_point: bool = False
 
     @property
     def n_owned(self) -> int:
@@ -166,30 +173,70 @@ def _check_state(ctx) -> None:
     raise_if_any(ctx.comm, error)
 
 
+#: Work of a wall particle relative to a fluid or solid one, for the partition. A wall
+#: row is binned and has a neighbour list, but it is no unknown of the PPE or viscous
+#: systems and no TLSPH row; the kernels only extrapolate its pressure and velocity.
+#: Counting walls as whole particles gave the rank with the dam-break column 1.3 % more
+#: PPE rows than the mean (docs/scaling.md).
+WALL_WORK = 0.25
+
+
+def _work(phase) -> np.ndarray:
+    """Partition weight of each row (1, or :data:`WALL_WORK` for walls)."""
+    return np.where(phase == PHASE_WALL, WALL_WORK, 1.0)
+
+
+def _unbalanced(comm, work, tolerance: float) -> bool:
+    """Collective: max/mean of the ranks' summed work above ``tolerance``."""
+    total = global_sum(comm, float(work.sum()))
+    return total > 0 and global_max(comm, float(work.sum())) * comm.size / total > tolerance
+
+
 def _distribute(ctx, force: bool = False) -> None:
     """Migrate particles to their owners; rebuild the partition when unbalanced.
 
     The partition follows ``ctx.key``: current positions ``x`` (fluids: particles
     migrate as they move), or reference positions ``X`` (TLSPH solids: ownership, halo
-    and neighbour lists are fixed for the whole run).
+    and neighbour lists are fixed for the whole run). It balances work, not particles:
+    walls weigh :data:`WALL_WORK`.
     """
     p, comm, key = ctx.particles, ctx.comm, ctx.key
     owned = p.owned_fields()
     if ctx.box.periodic and any(ctx.box.periodic):
         owned["x"] = ctx.box.wrap(owned["x"])
     tolerance = ctx.scene.run.rebalance_tolerance
+    work = _work(owned["phase"])
     if ctx.layout == "mixed":  # solids by X (fixed), the other rows by x
         solid = owned["phase"] == PHASE_SOLID
         if force or ctx.rcb_ref is None:
             ctx.rcb_ref = RCB.build(comm, owned["X"][solid], ctx.box)
-        if force or ctx.rcb is None or imbalance(comm, int((~solid).sum())) > tolerance:
-            ctx.rcb = RCB.build(comm, owned["x"][~solid], ctx.box)
+        if force or ctx.rcb is None or _unbalanced(comm, work[~solid], tolerance):
+            ctx.rcb = RCB.build(comm, owned["x"][~solid], ctx.box, weights=work[~solid])
         dest = np.where(solid, ctx.rcb_ref.owner(owned["X"]), ctx.rcb.owner(owned["x"]))
         p.set_owned(migrate(comm, owned, dest))
         return
-    if force or ctx.rcb is None or imbalance(comm, p.n_owned) > tolerance:
-        ctx.rcb = RCB.build(comm, owned[key], ctx.box)
-    p.set_owned(migrate(comm, owned, ctx.rcb.owner(owned[key])))
+    rebuilt = force or ctx.rcb is None or _unbalanced(comm, work, tolerance)
+    if rebuilt:
+        ctx.rcb = RCB.build(comm, owned[key], ctx.box, weights=work)
+    dest = ctx.rcb.owner(owned[key])
+    if ctx.skin > 0 and not rebuilt and not ctx.sync_point and ctx.step % ctx.migrate_every:
+        _keep_strays(ctx, owned[key], dest)
+    p.set_owned(migrate(comm, owned, dest))
+
+
+def _keep_strays(ctx, x, dest) -> None:
+    """Collective: lagged migration. Rows that left their rank's sub-box stay (``dest`` is
+    set to this rank) while every stray on every rank is within ``ctx.skin`` of its
+    owner's sub-box; the halo is ``ctx.skin`` wider, so every neighbour within 2h of a
+    stray still reaches it. Unchanged rows keep the AMG set-up of the fluid systems
+    (``fluid.preconditioner_reuse``); strays move every ``ctx.migrate_every`` steps."""
+    me = ctx.comm.rank
+    stray = np.nonzero(dest != me)[0]
+    lo, hi = ctx.rcb.subbox(me)
+    gap = np.maximum(0.0, np.maximum(lo - x[stray], x[stray] - hi))
+    far = bool(((gap * gap).sum(axis=1) > ctx.skin * ctx.skin).any())
+    if not global_any(ctx.comm, far):
+        dest[stray] = me
 
 
 def refresh(ctx, force_partition: bool = False) -> None:
@@ -215,7 +262,8 @@ def refresh(ctx, force_partition: bool = False) -> None:
             ctx.halo = coupled_halo(ctx.comm, p["x"][:n], phase == PHASE_SOLID,
                                     phase == PHASE_FLUID, ctx.radius if current else -1.0)
         else:
-            ctx.halo = Halo.build(ctx.comm, ctx.rcb, p[key][: p.n_owned], ctx.radius, ctx.box)
+            ctx.halo = Halo.build(ctx.comm, ctx.rcb, p[key][: p.n_owned], ctx.radius + ctx.skin,
+                                  ctx.box)
         p.set_halo(ctx.halo.exchange(p.owned_fields(), shift_fields=("x", "X")))
 
     _timed(ctx, "halo", halo)
@@ -228,6 +276,15 @@ def refresh(ctx, force_partition: bool = False) -> None:
             ctx.indices = np.zeros(0, dtype=np.int64)
 
     _timed(ctx, "neighbours", neighbours)
+
+
+def _renew_preconditioners(stages) -> None:
+    """At a sync point: the next solves set their preconditioners up afresh, as a run
+    restarted from a checkpoint written here does, so that the restart is bit for bit."""
+    for s in stages:
+        fluid = getattr(s, "fluid", s)  # the coupled stage holds its IISPH stage
+        if hasattr(fluid, "renew_preconditioners"):
+            fluid.renew_preconditioners()
 
 
 def _time_step(ctx, stages, next_frame: float, end: float) -> float:
@@ -346,6 +403,9 @@ def _build(scene, out, comm, petsc_args, restart):
     ctx = Context(scene=scene, comm=comm, particles=particles, box=box, dim=dim, d=d, h=h,
                   radius=support_radius(h), layout=lay, key="X" if lay == "reference" else "x",
                   materials=list(scene.materials.values()), restarted=ck is not None, out=out)
+    reuse = scene.fluid.preconditioner_reuse
+    if lay == "current" and reuse > 1 and any(s.name == "iisph" for s in specs):
+        ctx.skin, ctx.migrate_every = 0.5 * d, reuse
     if ck is not None:
         ctx.time, ctx.step = float(ck.meta["time"]), int(ck.meta["step"])
         ctx.rcb = ck.rcb  # None at another rank count: re-partitioned below
@@ -457,7 +517,14 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
             ctx.step += 1
             faults.inject_nan(ctx)
             _check_state(ctx)
+            # frames, checkpoints and the end are sync points: every stray particle moves
+            # to its owner and the next solves set up afresh, as after a restart from here
+            ctx.sync_point = (ctx.time >= next_frame - 1e-9 * every
+                              or ctx.time >= end - 1e-12 * end
+                              or (ck_every > 0 and ctx.time >= next_ck - 1e-9 * ck_every))
             refresh(ctx)
+            if ctx.sync_point:
+                _renew_preconditioners(stages)
             for s in stages:
                 if hasattr(s, "after_refresh"):
                     _timed(ctx, s.name, s.after_refresh, ctx)

@@ -54,20 +54,24 @@ def _reason_names(PETSc) -> dict[int, str]:
     return names
 
 
-def _agree(comm, error: tuple[type, str] | None, flag: bool = False) -> bool:
-    """Collective: raise one rank's error on every rank, else return ``any(flag)``.
+def _agree(comm, error: tuple[type, str] | None, flag: int = 0) -> int:
+    """Collective: raise one rank's error on every rank, else return the bitwise OR of
+    the ranks' ``flag`` (a bool is the one-bit case: ``any(flag)``).
 
     ``error`` is ``(exception type, message)`` or None. The error raised everywhere is
     the lowest failing rank's, with the same type, so that no rank is left waiting in a
     later collective while another one has given up.
     """
-    gathered = comm.allgather((None if error is None else (error[0].__name__, error[1]), bool(flag)))
+    gathered = comm.allgather((None if error is None else (error[0].__name__, error[1]), int(flag)))
     for rank, (item, _) in enumerate(gathered):
         if item is not None:
             name, message = item
             cls = SolverError if name == SolverError.__name__ else ValueError
             raise cls(f"rank {rank}: {message}")
-    return any(changed for _, changed in gathered)
+    out = 0
+    for _, bits in gathered:
+        out |= bits
+    return out
 
 
 def _normalise_prefix(prefix: str) -> str:
@@ -111,6 +115,10 @@ class LinearSystem:
         ``MAT_SYMMETRY_ETERNAL``, and makes the constant null space also the transpose
         null space). None means True for symmetric Krylov methods (``cg``, ``minres``…)
         and False otherwise. It is a promise, not checked.
+    reuse_preconditioner : int, optional
+        Solves that may share one preconditioner set-up (1: a fresh set-up for every new
+        matrix). A set-up is only kept for a matrix whose caller declares the same
+        unknowns (``assemble_csr(..., same_unknowns=True)``); see Notes.
 
     Attributes
     ----------
@@ -122,6 +130,11 @@ class LinearSystem:
         Scalar unknowns of all ranks.
     n_builds : int
         How many times a matrix was (re)built because the sparsity pattern changed.
+    n_setups : int
+        How many fresh preconditioner set-ups were asked for (one per new matrix when
+        ``reuse_preconditioner`` is 1).
+    fresh_setup : bool
+        Whether the last :meth:`solve` set its preconditioner up afresh.
 
     Notes
     -----
@@ -135,7 +148,19 @@ class LinearSystem:
 
     The object owns its PETSc objects: call :meth:`destroy` (or use it as a context
     manager) on every rank.
+
+    *Lagged preconditioner.* With ``reuse_preconditioner = k > 1`` the AMG hierarchy of
+    a matrix serves as preconditioner of the next ``k - 1`` matrices over the same
+    unknowns (``PCSetReusePreconditioner``): the Krylov method works on the new matrix,
+    so the solution meets the same tolerance; only the iteration count may grow. A set-up
+    is made afresh when a lagged solve needs more than ``REUSE_GROWTH`` times the
+    iterations of the solve after the last set-up (plus 2), and a lagged solve that does
+    not converge is repeated once with a fresh set-up before it raises.
     """
+
+    #: A lagged preconditioner is dropped when a solve needs more than this factor times
+    #: the iterations of the first solve after its set-up (plus 2).
+    REUSE_GROWTH = 1.5
 
     def __init__(
         self,
@@ -149,6 +174,7 @@ class LinearSystem:
         atol: float = 1e-50,
         max_it: int = 1000,
         symmetric: bool | None = None,
+        reuse_preconditioner: int = 1,
     ):
         PETSc = petsc_env.petsc()
         self._PETSc = PETSc
@@ -172,6 +198,12 @@ class LinearSystem:
             )
         self.symmetric = ksp_type in _SYMMETRIC_KSP if symmetric is None else bool(symmetric)
         self.n_builds = 0
+        self.reuse_preconditioner = max(1, int(reuse_preconditioner))
+        self.n_setups = 0
+        self.fresh_setup = True
+        self._pc_age = 0  # solves since the last fresh set-up (0: the next one sets up)
+        self._pc_iterations = 0  # iterations of the first solve after that set-up
+        self._pc_stale = False
         self._reasons = _reason_names(PETSc)
 
         sizes = (self.n_local, self.n_global)
@@ -329,6 +361,7 @@ class LinearSystem:
         changed, keys, inverse = (False, None, None) if error else self._pattern_of(rows, cols)
         rebuild = _agree(self.comm, error, changed) or self._mat is None
         data = np.bincount(inverse, weights=values, minlength=keys.size).astype(np.float64, copy=False)
+        self._lag(False)
         if rebuild:
             self._build(rows, cols, keys, inverse, data)
         else:
@@ -340,7 +373,7 @@ class LinearSystem:
             self._mat.assemble()
         self._ksp.setOperators(self._mat)
 
-    def assemble_csr(self, indptr, cols, values) -> None:
+    def assemble_csr(self, indptr, cols, values, same_unknowns: bool = False) -> None:
         """Collective: set the matrix from a CSR block of this rank's owned scalar rows.
 
         Parameters
@@ -352,6 +385,11 @@ class LinearSystem:
             Global column indices, sorted and distinct within each row.
         values : numpy.ndarray of float64, shape (indptr[-1],)
             Matrix entries.
+        same_unknowns : bool, optional
+            The caller's promise that the unknowns are the ones of the last assembly
+            (the same points in the same order, e.g. the same particle ids). Only then,
+            on every rank, may the last preconditioner set-up be kept (see
+            ``reuse_preconditioner``).
 
         Raises
         ------
@@ -388,7 +426,9 @@ class LinearSystem:
             or last["indices"].shape != cols.shape
             or not np.array_equal(last["indptr"], indptr)
             or not np.array_equal(last["indices"], cols))
-        rebuild = _agree(self.comm, error, changed) or self._mat is None
+        bits = _agree(self.comm, error, int(changed) | (0 if same_unknowns else 2))
+        rebuild = bool(bits & 1) or self._mat is None
+        self._lag(not bits & 2)
         if rebuild:
             # copies: the pattern is kept, and callers reuse their arrays step to step
             self._build_csr(indptr.astype(int_type), cols.astype(int_type), values)
@@ -425,11 +465,24 @@ class LinearSystem:
             self._attach_nullspace(mat)
 
         if self._mat is not None:
-            self._ksp.reset()  # frees the preconditioner built on the old pattern
+            if self._pc_age == 0:  # no lagged preconditioner to keep
+                self._ksp.reset()  # frees the preconditioner built on the old pattern
             self._mat.destroy()
         self._mat = mat
         self._pattern = dict(indptr=indptr, indices=indices)
         self.n_builds += 1
+
+    def _lag(self, same_unknowns: bool) -> None:
+        """Keep the last preconditioner set-up for the next solve, or ask for a fresh one.
+
+        The inputs are the same on every rank (agreed flags, global iteration counts), so
+        every rank decides alike."""
+        keep = (same_unknowns and self._mat is not None and not self._pc_stale
+                and 0 < self._pc_age < self.reuse_preconditioner)
+        if not keep:
+            self._pc_age = 0
+            self._pc_stale = False
+        self._ksp.getPC().setReusePreconditioner(keep)
 
     # -- solve ----------------------------------------------------------------------
 
@@ -453,7 +506,8 @@ class LinearSystem:
             ``iterations`` (int), ``residual_norm`` (float: the norm the KSP tests, the
             preconditioned residual for CG by default), ``reason`` (int, > 0),
             ``reason_name`` (str, e.g. ``"CONVERGED_RTOL"``), ``time_s`` (float: wall
-            time of ``KSPSolve`` on this rank, seconds).
+            time of ``KSPSolve`` on this rank, seconds), ``fresh_setup`` (bool: the
+            preconditioner was set up for this matrix, not lagged).
 
         Raises
         ------
@@ -485,15 +539,32 @@ class LinearSystem:
         self._ksp.setInitialGuessNonzero(x0 is not None)
         start = time.perf_counter()
         self._ksp.solve(self._b, self._x)
+        reason = int(self._ksp.getConvergedReason())
+        self.fresh_setup = self._pc_age == 0
+        if reason <= 0 and not self.fresh_setup:
+            # a lagged preconditioner may be what failed: once more with a fresh set-up
+            self._ksp.getPC().setReusePreconditioner(False)
+            self._pc_age = 0
+            self._x.set(0.0) if x0 is None else self._x.setArray(x0.reshape(-1))
+            self._ksp.solve(self._b, self._x)
+            reason = int(self._ksp.getConvergedReason())
+            self.fresh_setup = True
         elapsed = time.perf_counter() - start
 
-        reason = int(self._ksp.getConvergedReason())
+        iterations = int(self._ksp.getIterationNumber())
+        if self.fresh_setup:
+            self.n_setups += 1
+            self._pc_iterations = iterations
+        elif iterations > self.REUSE_GROWTH * self._pc_iterations + 2:
+            self._pc_stale = True  # the next matrix gets a fresh set-up
+        self._pc_age += 1
         info = dict(
-            iterations=int(self._ksp.getIterationNumber()),
+            iterations=iterations,
             residual_norm=float(self._ksp.getResidualNorm()),
             reason=reason,
             reason_name=self._reasons.get(reason, f"UNKNOWN_{reason}"),
             time_s=elapsed,
+            fresh_setup=self.fresh_setup,
         )
         if reason <= 0:
             raise SolverError(self._failure_message(info))

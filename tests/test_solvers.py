@@ -354,3 +354,89 @@ def test_assemble_csr_matches_triplets_and_reuses_the_pattern(comm):
             system.assemble_csr(indptr, c + system.n_global, v)
         with pytest.raises(SolverError, match="NaN"):
             system.assemble_csr(indptr, c, np.full(v.size, np.nan))
+
+
+def _poisson_csr(n, first, stop, shift=0.0, extra=False):
+    """CSR block of rows first..stop-1 of the Dirichlet Laplacian plus ``shift`` on the
+    diagonal; ``extra`` adds a zero entry (i, i + 2) to every row: a new pattern."""
+    rows, cols, values = poisson_triplets(n, np.arange(first, stop))
+    values = np.where(rows == cols, values + shift, values)
+    if extra:
+        far = np.arange(first, stop)
+        keep = far + 2 < n * n
+        rows = np.concatenate([rows, far[keep]])
+        cols = np.concatenate([cols, far[keep] + 2])
+        values = np.concatenate([values, np.zeros(keep.sum())])
+    block = sp.csr_matrix((values, (rows - first, cols)), shape=(stop - first, n * n))
+    block.sort_indices()
+    return block.indptr, block.indices, block.data, block
+
+
+def _residual(comm, block, x, b):
+    """Global relative residual ||b - A x|| / ||b|| of a row-distributed system."""
+    full = np.concatenate(comm.allgather(x))
+    r2 = comm.allreduce(float(((b - block @ full) ** 2).sum()))
+    return np.sqrt(r2 / comm.allreduce(float((b ** 2).sum())))
+
+
+def test_lagged_preconditioner_serves_k_solves_over_the_same_unknowns(comm):
+    """reuse_preconditioner = 3: one AMG set-up per three matrices of the same unknowns,
+    new patterns included; every solve still meets its tolerance. Different unknowns
+    (on any rank) always get a fresh set-up."""
+    n = 40
+    total = n * n
+    with LinearSystem(comm, "lag_", block_rows(comm, total), rtol=1e-10,
+                      reuse_preconditioner=3) as system:
+        first, stop = system.owned_range
+        b = rhs_of(total)[first:stop]
+        fresh = []
+        for k in range(7):
+            indptr, cols, vals, block = _poisson_csr(n, first, stop, shift=0.01 * k,
+                                                     extra=k % 2 == 1)
+            system.assemble_csr(indptr, cols, vals, same_unknowns=True)
+            x, info = system.solve(b)
+            fresh.append(info["fresh_setup"])
+            assert _residual(comm, block, x, b) < 1e-8
+        assert fresh == [True, False, False, True, False, False, True]
+        assert system.n_setups == 3 and system.n_builds == 7
+        # a rank that declares new unknowns forces a fresh set-up on every rank
+        indptr, cols, vals, block = _poisson_csr(n, first, stop, shift=0.1)
+        system.assemble_csr(indptr, cols, vals, same_unknowns=comm.rank != comm.size - 1)
+        x, info = system.solve(b)
+        assert info["fresh_setup"] and system.n_setups == 4
+        assert _residual(comm, block, x, b) < 1e-8
+
+
+def test_lagged_preconditioner_is_dropped_when_it_fails_or_degrades(comm):
+    """The hierarchy of a strongly shifted Laplacian is a poor preconditioner of the plain
+    one: with a tight max_it the lagged solve fails and is repeated with a fresh set-up
+    (no error); with room, it converges slowly and the next matrix gets a fresh set-up."""
+    n = 40
+    total = n * n
+    rows_here = block_rows(comm, total)
+    with LinearSystem(comm, "lagf_", rows_here, rtol=1e-10, max_it=30,
+                      reuse_preconditioner=10) as system:
+        first, stop = system.owned_range
+        b = rhs_of(total)[first:stop]
+        easy = _poisson_csr(n, first, stop, shift=50.0)
+        system.assemble_csr(*easy[:3], same_unknowns=True)
+        system.solve(b)
+        plain = _poisson_csr(n, first, stop)
+        system.assemble_csr(*plain[:3], same_unknowns=True)
+        x, info = system.solve(b)
+        assert info["fresh_setup"] and system.n_setups == 2  # the retry
+        assert _residual(comm, plain[3], x, b) < 1e-8
+        fresh_its = info["iterations"]
+    with LinearSystem(comm, "lagd_", rows_here, rtol=1e-10, max_it=1000,
+                      reuse_preconditioner=10) as system:
+        system.assemble_csr(*easy[:3], same_unknowns=True)
+        _, info = system.solve(b)
+        easy_its = info["iterations"]
+        system.assemble_csr(*plain[:3], same_unknowns=True)
+        x, info = system.solve(b)
+        assert not info["fresh_setup"] and info["iterations"] > 1.5 * easy_its + 2
+        assert info["iterations"] > fresh_its
+        assert _residual(comm, plain[3], x, b) < 1e-8
+        system.assemble_csr(*plain[:3], same_unknowns=True)
+        _, info = system.solve(b)
+        assert info["fresh_setup"]  # degraded: dropped

@@ -31,10 +31,11 @@ from decomposition.reduce import global_any, global_max, global_min, global_sum
 from parsph.fluid import assembly, rheology
 from parsph.contact import wall_contact
 from parsph.fluid.walls import wall_slip
-from parsph.materials import PHASE_FLUID
+from parsph.materials import PHASE_FLUID, PHASE_WALL
 from solvers.csr import sort_neighbours_by_row
 
 STATS = ("viscous_number", "visc_iterations", "visc_residual", "ppe_iterations", "ppe_residual",
+         "ppe_setup",
          "n_free_surface", "fluid_contacts", "max_divergence", "wall_s_fluid_assembly",
          "wall_s_fluid_solve", "wall_s_visc_solve", "wall_s_ppe_solve", "wall_s_fluid_halo")
 
@@ -122,6 +123,7 @@ class IISPH:
         p["wall_slip"][:n] = wall_slip(ctx.scene, p["body"][:n], ~fluid)
         self.les = self.num.smagorinsky * self.num.les_width * ctx.h
         self._ppe = self._visc = None
+        self._row_ids = {}
         self._buffers = {}
         self._n_rows = -1
         self._dt_cfl = 0.0
@@ -135,13 +137,27 @@ class IISPH:
             from solvers import LinearSystem
 
             self.destroy()
-            tol = dict(max_it=self.num.max_it)
+            tol = dict(max_it=self.num.max_it, reuse_preconditioner=self.num.preconditioner_reuse)
             self._ppe = LinearSystem(ctx.comm, "ppe_", n, ksp_type="gmres",
                                      rtol=self.num.ppe_rtol, **tol)
             self._visc = LinearSystem(ctx.comm, "visc_", n, block_size=ctx.dim,
                                       ksp_type="gmres", rtol=self.num.visc_rtol, **tol)
             self._n_rows = n
+            self._row_ids = {}
         return self._ppe, self._visc
+
+    def renew_preconditioners(self) -> None:
+        """The next assembly of each system sets its preconditioner up afresh."""
+        self._row_ids = {}
+
+    def _same_rows(self, system, ids) -> bool:
+        """Whether ``system``'s rows are the particles ``ids`` of its last assembly (then
+        its preconditioner set-up may be kept, see ``fluid.preconditioner_reuse``)."""
+        last = self._row_ids.get(system.prefix)
+        same = last is not None and np.array_equal(last, ids)
+        if not same:
+            self._row_ids[system.prefix] = ids.copy()
+        return same
 
     def _csr_buffers(self, system, capacity):
         """Work arrays ``(indptr, cols, values)`` for a CSR block of ``system``'s owned rows
@@ -216,8 +232,11 @@ class IISPH:
         coupled = coupling is not None
         solid = coupling.scale if coupled else np.zeros(len(fluid))
         solid_acc = coupling.acc if coupled else None
-        # rows of the systems: fluid rows and boundary rows with a fluid neighbour
-        act = (fluid[:n] | assembly.has_fluid_neighbour(fluid, ctx.indptr, ctx.indices)) == 1
+        # rows of the systems: fluid rows, boundary rows with a fluid neighbour and every
+        # wall row (a dry one is the identity row p = 0, v = v_wall): the rows then stay the
+        # same particles while the fluid runs along a wall, which keeps the AMG set-up
+        act = (fluid[:n] | assembly.has_fluid_neighbour(fluid, ctx.indptr, ctx.indices)
+               | (p["phase"][:n] == PHASE_WALL)) == 1
         n_act = int(act.sum())
         ppe, visc = self._systems(ctx, n_act)
         offset, _ = global_offset(ctx.comm, n_act)
@@ -286,7 +305,8 @@ class IISPH:
             nnz, rhs = assembly.viscous_csr(
                 x, p["v"], m, rho, p["nu"], fluid, solid, slip, row, indptr, indices, h, dim, dt,
                 g, morris, visc.offset // dim, ptr, cols, vals)
-            visc.assemble_csr(ptr, cols[:nnz], vals[:nnz])
+            visc.assemble_csr(ptr, cols[:nnz], vals[:nnz],
+                              same_unknowns=self._same_rows(visc, p["id"][:n][act]))
             t_asm += time.perf_counter() - t0
             vstar, info_v = visc.solve(rhs[act], x0=p["v"][:n][act])
             vs[:n][solid[:n] > 0] = p["v"][:n][solid[:n] > 0]  # solids: their predictor (7)
@@ -308,7 +328,8 @@ class IISPH:
             alpha, d, g, np.ascontiguousarray(acc), pin, self.num.ppe_laplacian == "corrected",
             self.num.density_correction == "both" or
             (self.num.density_correction == "auto" and not confined), ppe.offset, ptr, cols, vals)
-        ppe.assemble_csr(ptr, cols[:nnz], vals[:nnz])
+        ppe.assemble_csr(ptr, cols[:nnz], vals[:nnz],
+                         same_unknowns=self._same_rows(ppe, p["id"][:n][act]))
         t_asm += time.perf_counter() - t0
         pres, info_p = ppe.solve(rhs[act], x0=p["p"][:n][act])
         if self.num.clamp_negative_pressure:  # MPS practice (Koshizuka & Oka 1996)
@@ -367,6 +388,7 @@ class IISPH:
             "visc_residual": info_v["residual_norm"],
             "ppe_iterations": info_p["iterations"],
             "ppe_residual": info_p["residual_norm"],
+            "ppe_setup": int(info_p["fresh_setup"]),
             "n_free_surface": int(global_sum(comm, int(free[:n][own_fluid].sum()))),
             "fluid_contacts": int(global_sum(comm, contacts)),
             "max_divergence": global_max(comm, float(np.abs(div[inner]).max()) if inner.any()
