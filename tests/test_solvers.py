@@ -3,6 +3,7 @@
 Every rank builds the triplets of its own contiguous block of rows; the reference matrix
 is built identically, in full, on every rank. Assertions hold at any rank count.
 """
+import os
 import subprocess
 import sys
 
@@ -440,3 +441,35 @@ def test_lagged_preconditioner_is_dropped_when_it_fails_or_degrades(comm):
         system.assemble_csr(*plain[:3], same_unknowns=True)
         _, info = system.solve(b)
         assert info["fresh_setup"]  # degraded: dropped
+
+
+def _smoother(comm, system, tmp):
+    """The 'Relax down' line of the KSP's view (the BoomerAMG smoother it uses)."""
+    PETSc = petsc_env.petsc()
+    path = os.path.join(tmp, f"view_{system.prefix}.txt")
+    viewer = PETSc.Viewer().createASCII(path, comm=comm)
+    system.ksp.view(viewer)
+    viewer.destroy()
+    comm.Barrier()
+    with open(path) as fh:
+        return [line.split()[-1] for line in fh if "Relax down" in line][0]
+
+
+def test_boomeramg_smoother_defaults_to_l1_gauss_seidel_unless_asked(comm, mpi_tmp_path):
+    """parsph's default smoother (docs/solvers.md); -{prefix}pc_hypre_* still wins."""
+    if not petsc_env.has_hypre():
+        pytest.skip("this PETSc has no hypre")
+    PETSc = petsc_env.petsc()
+    n = 16
+    for prefix, asked in (("smooth_", None), ("smoothj_", "Jacobi")):
+        if asked:
+            PETSc.Options().setValue(prefix + "pc_hypre_boomeramg_relax_type_down", asked)
+        try:
+            with LinearSystem(comm, prefix, block_rows(comm, n * n)) as system:
+                first, stop = system.owned_range
+                system.assemble(*poisson_triplets(n, np.arange(first, stop)))
+                system.solve(rhs_of(n * n)[first:stop])
+                assert _smoother(comm, system, mpi_tmp_path) == (asked or "l1-Gauss-Seidel")
+        finally:
+            if asked:
+                PETSc.Options().delValue(prefix + "pc_hypre_boomeramg_relax_type_down")
