@@ -235,11 +235,12 @@ class LinearSystem:
             # Smoother: one forward l1-Gauss-Seidel sweep down, one backward sweep up (a
             # symmetric V-cycle). PETSc's default, hybrid symmetric SOR, sweeps both ways
             # on each visit: at 2.0e5 PPE rows the same iterations (5-11), 35 % less time
-            # per solve. The options database still wins.
+            # per solve. The options database still wins (also ..._relax_type_all).
             opts = PETSc.Options()
-            for key, value in _HYPRE_DEFAULTS.items():
-                if not opts.hasName(self.prefix + key):
-                    opts.setValue(self.prefix + key, value)
+            if not opts.hasName(self.prefix + "pc_hypre_boomeramg_relax_type_all"):
+                for key, value in _HYPRE_DEFAULTS.items():
+                    if not opts.hasName(self.prefix + key):
+                        opts.setValue(self.prefix + key, value)
         ksp.setTolerances(rtol=rtol, atol=atol, max_it=max_it)
         ksp.setOptionsPrefix(self.prefix)
         ksp.setFromOptions()

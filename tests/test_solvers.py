@@ -466,9 +466,11 @@ def test_boomeramg_smoother_defaults_to_l1_gauss_seidel_unless_asked(comm, mpi_t
         pytest.skip("this PETSc has no hypre")
     PETSc = petsc_env.petsc()
     n = 16
-    for prefix, asked in (("smooth_", None), ("smoothj_", "Jacobi")):
+    cases = (("smooth_", None, None), ("smoothj_", "relax_type_down", "Jacobi"),
+             ("smootha_", "relax_type_all", "Jacobi"))
+    for prefix, key, asked in cases:
         if asked:
-            PETSc.Options().setValue(prefix + "pc_hypre_boomeramg_relax_type_down", asked)
+            PETSc.Options().setValue(prefix + "pc_hypre_boomeramg_" + key, asked)
         try:
             with LinearSystem(comm, prefix, block_rows(comm, n * n)) as system:
                 first, stop = system.owned_range
@@ -477,4 +479,4 @@ def test_boomeramg_smoother_defaults_to_l1_gauss_seidel_unless_asked(comm, mpi_t
                 assert _smoother(comm, system, mpi_tmp_path) == (asked or "l1-Gauss-Seidel")
         finally:
             if asked:
-                PETSc.Options().delValue(prefix + "pc_hypre_boomeramg_relax_type_down")
+                PETSc.Options().delValue(prefix + "pc_hypre_boomeramg_" + key)
