@@ -92,7 +92,7 @@ class FluidNumerics:
     visc_rtol: float = spec(1e-8, doc="relative tolerance of the viscous predictor solve "
                             "(visc_ksp_rtol)", gt=0.0, lt=1.0)
     max_it: int = spec(500, doc="maximum Krylov iterations of either solve", gt=0)
-    preconditioner_reuse: int = spec(4, doc="solves that share one AMG set-up while the rows "
+    preconditioner_reuse: int = spec(4, doc="PPE solves that share one AMG set-up while the rows "
                                      "are the same particles (1 = a fresh set-up every step); "
                                      "a fresh one when the iterations grow by half, and "
                                      "particles change rank only every this many steps unless "
