@@ -489,14 +489,15 @@ def _level_cuts(comm, x, vals, g, ranks_n, ranks_l, region, weighted):
     return axes, cuts
 
 
-def imbalance(comm, n_owned: int) -> float:
-    """Collective: ``max / mean`` of the owned particle counts over the ranks.
+def imbalance(comm, n_owned: float) -> float:
+    """Collective: ``max / mean`` of the owned particle counts (or work) over the ranks.
 
     Parameters
     ----------
     comm : mpi4py.MPI.Comm
-    n_owned : int
-        Particles owned by this rank.
+    n_owned : int or float
+        Particles owned by this rank, or their summed work (e.g. weights given to
+        :meth:`RCB.build`).
 
     Returns
     -------
@@ -504,7 +505,7 @@ def imbalance(comm, n_owned: int) -> float:
         1.0 for a perfect balance (and when no rank owns anything); ``size`` when one
         rank owns everything.
     """
-    n_owned = int(n_owned)
+    n_owned = n_owned.item() if isinstance(n_owned, np.generic) else n_owned
     total = comm.allreduce(n_owned, op=MPI.SUM)
     largest = comm.allreduce(n_owned, op=MPI.MAX)
     if total == 0:

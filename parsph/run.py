@@ -24,7 +24,7 @@ from decomposition import collective, raise_if_any, world
 from decomposition.box import Box
 from decomposition.exchange import migrate
 from decomposition.halo import Halo, coupled_halo
-from decomposition.partition import RCB
+from decomposition.partition import RCB, imbalance
 from decomposition.reduce import global_any, global_max, global_min, global_sum
 from parsph.budget import check_budget
 from parsph.errors import NumericalError, ParsphError
@@ -186,12 +186,6 @@ def _work(phase) -> np.ndarray:
     return np.where(phase == PHASE_WALL, WALL_WORK, 1.0)
 
 
-def _unbalanced(comm, work, tolerance: float) -> bool:
-    """Collective: max/mean of the ranks' summed work above ``tolerance``."""
-    total = global_sum(comm, float(work.sum()))
-    return total > 0 and global_max(comm, float(work.sum())) * comm.size / total > tolerance
-
-
 def _distribute(ctx, force: bool = False) -> None:
     """Migrate particles to their owners; rebuild the partition when unbalanced.
 
@@ -210,12 +204,12 @@ def _distribute(ctx, force: bool = False) -> None:
         solid = owned["phase"] == PHASE_SOLID
         if force or ctx.rcb_ref is None:
             ctx.rcb_ref = RCB.build(comm, owned["X"][solid], ctx.box)
-        if force or ctx.rcb is None or _unbalanced(comm, work[~solid], tolerance):
+        if force or ctx.rcb is None or imbalance(comm, float(work[~solid].sum())) > tolerance:
             ctx.rcb = RCB.build(comm, owned["x"][~solid], ctx.box, weights=work[~solid])
         dest = np.where(solid, ctx.rcb_ref.owner(owned["X"]), ctx.rcb.owner(owned["x"]))
         p.set_owned(migrate(comm, owned, dest))
         return
-    rebuilt = force or ctx.rcb is None or _unbalanced(comm, work, tolerance)
+    rebuilt = force or ctx.rcb is None or imbalance(comm, float(work.sum())) > tolerance
     if rebuilt:
         ctx.rcb = RCB.build(comm, owned[key], ctx.box, weights=work)
     dest = ctx.rcb.owner(owned[key])
@@ -228,7 +222,7 @@ def _keep_strays(ctx, x, dest) -> None:
     """Collective: lagged migration. Rows that left their rank's sub-box stay (``dest`` is
     set to this rank) while every stray on every rank is within ``ctx.skin`` of its
     owner's sub-box; the halo is ``ctx.skin`` wider, so every neighbour within 2h of a
-    stray still reaches it. Unchanged rows keep the AMG set-up of the fluid systems
+    stray still reaches it. Unchanged rows keep the PPE's AMG set-up
     (``fluid.preconditioner_reuse``); strays move every ``ctx.migrate_every`` steps."""
     me = ctx.comm.rank
     stray = np.nonzero(dest != me)[0]
@@ -282,9 +276,8 @@ def _renew_preconditioners(stages) -> None:
     """At a sync point: the next solves set their preconditioners up afresh, as a run
     restarted from a checkpoint written here does, so that the restart is bit for bit."""
     for s in stages:
-        fluid = getattr(s, "fluid", s)  # the coupled stage holds its IISPH stage
-        if hasattr(fluid, "renew_preconditioners"):
-            fluid.renew_preconditioners()
+        if hasattr(s, "renew_preconditioners"):
+            s.renew_preconditioners()
 
 
 def _time_step(ctx, stages, next_frame: float, end: float) -> float:

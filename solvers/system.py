@@ -157,10 +157,10 @@ class LinearSystem:
     *Lagged preconditioner.* With ``reuse_preconditioner = k > 1`` the AMG hierarchy of
     a matrix serves as preconditioner of the next ``k - 1`` matrices over the same
     unknowns (``PCSetReusePreconditioner``): the Krylov method works on the new matrix,
-    so the solution meets the same tolerance; only the iteration count may grow. A set-up
-    is made afresh when a lagged solve needs more than ``REUSE_GROWTH`` times the
-    iterations of the solve after the last set-up (plus 2), and a lagged solve that does
-    not converge is repeated once with a fresh set-up before it raises.
+    so the solution meets the same tolerance; only the iteration count may grow. A lagged
+    solve may take at most ``REUSE_GROWTH`` times the iterations of the solve after the
+    last set-up (plus 2); one that has not converged by then is solved again from its
+    initial guess with a fresh set-up and the full ``max_it``.
     """
 
     #: A lagged solve may take this factor times the iterations of the first solve after
@@ -574,7 +574,7 @@ class LinearSystem:
             # solve after its set-up (+2); a matrix that changed too much for it (one step
             # of a 4e5-particle dam break took 180 lagged iterations against 21 fresh) is
             # solved again from x0 with a fresh set-up
-            rtol, atol, dtol, max_it = self._ksp.getTolerances()
+            max_it = self._ksp.getTolerances()[3]
             cap = min(max_it, int(self.REUSE_GROWTH * self._pc_iterations) + 2)
             self._ksp.setTolerances(max_it=cap)
             try:

@@ -116,6 +116,10 @@ class Coupled:
         self._stats["n_fluidised"] = int(state.get("n_fluidised", 0))
         self._stats["n_failed"] = int(state.get("n_failed", 0))
 
+    def renew_preconditioners(self) -> None:
+        """At a sync point (see :func:`parsph.run.run`): the fluid's next solves set up afresh."""
+        self.fluid.renew_preconditioners()
+
     def state(self) -> dict:
         return {"n_fluidised": int(self._stats["n_fluidised"]),
                 "n_failed": int(self._stats["n_failed"])}

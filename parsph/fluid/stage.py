@@ -123,7 +123,7 @@ class IISPH:
         p["wall_slip"][:n] = wall_slip(ctx.scene, p["body"][:n], ~fluid)
         self.les = self.num.smagorinsky * self.num.les_width * ctx.h
         self._ppe = self._visc = None
-        self._row_ids = {}
+        self._ppe_ids = None  # the particles of the PPE's rows at its last assembly
         self._buffers = {}
         self._n_rows = -1
         self._dt_cfl = 0.0
@@ -147,20 +147,19 @@ class IISPH:
             self._visc = LinearSystem(ctx.comm, "visc_", n, block_size=ctx.dim,
                                       ksp_type="gmres", rtol=self.num.visc_rtol, **tol)
             self._n_rows = n
-            self._row_ids = {}
+            self._ppe_ids = None
         return self._ppe, self._visc
 
     def renew_preconditioners(self) -> None:
-        """The next assembly of each system sets its preconditioner up afresh."""
-        self._row_ids = {}
+        """The PPE's next assembly sets its preconditioner up afresh."""
+        self._ppe_ids = None
 
-    def _same_rows(self, system, ids) -> bool:
-        """Whether ``system``'s rows are the particles ``ids`` of its last assembly (then
-        its preconditioner set-up may be kept, see ``fluid.preconditioner_reuse``)."""
-        last = self._row_ids.get(system.prefix)
-        same = last is not None and np.array_equal(last, ids)
+    def _same_ppe_rows(self, ids) -> bool:
+        """Whether the PPE's rows are the particles ``ids`` of its last assembly (then its
+        preconditioner set-up may be kept, see ``fluid.preconditioner_reuse``)."""
+        same = self._ppe_ids is not None and np.array_equal(self._ppe_ids, ids)
         if not same:
-            self._row_ids[system.prefix] = ids.copy()
+            self._ppe_ids = ids.copy()
         return same
 
     def _csr_buffers(self, system, capacity):
@@ -309,8 +308,7 @@ class IISPH:
             nnz, rhs = assembly.viscous_csr(
                 x, p["v"], m, rho, p["nu"], fluid, solid, slip, row, indptr, indices, h, dim, dt,
                 g, morris, visc.offset // dim, ptr, cols, vals)
-            visc.assemble_csr(ptr, cols[:nnz], vals[:nnz],
-                              same_unknowns=self._same_rows(visc, p["id"][:n][act]))
+            visc.assemble_csr(ptr, cols[:nnz], vals[:nnz])
             t_asm += time.perf_counter() - t0
             vstar, info_v = visc.solve(rhs[act], x0=p["v"][:n][act])
             vs[:n][solid[:n] > 0] = p["v"][:n][solid[:n] > 0]  # solids: their predictor (7)
@@ -333,7 +331,7 @@ class IISPH:
             self.num.density_correction == "both" or
             (self.num.density_correction == "auto" and not confined), ppe.offset, ptr, cols, vals)
         ppe.assemble_csr(ptr, cols[:nnz], vals[:nnz],
-                         same_unknowns=self._same_rows(ppe, p["id"][:n][act]))
+                         same_unknowns=self._same_ppe_rows(p["id"][:n][act]))
         t_asm += time.perf_counter() - t0
         pres, info_p = ppe.solve(rhs[act], x0=p["p"][:n][act])
         if self.num.clamp_negative_pressure:  # MPS practice (Koshizuka & Oka 1996)
