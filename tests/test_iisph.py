@@ -111,6 +111,53 @@ def test_viscous_predictor_is_eq34(morris):
     assert lhs[3] == pytest.approx(vstar[3] + (wts[:, None] * vstar[:3]).sum(0) / wts.sum())
 
 
+def test_csr_kernels_write_the_rows_in_the_stage_numbering():
+    """The stage numbers the wall rows after the fluid's (``IISPH._row_order``, for the
+    AMG smoother); the kernels then emit the rows in that order: the matrix is the
+    particle-order one with rows and columns permuted, the right-hand side per particle."""
+    from parsph.fluid.stage import IISPH
+    from solvers.csr import sort_neighbours_by_row
+
+    d, h, x, m, fluid, free, rho, rho0, indptr, indices, row = _small_set()
+    wall = fluid == 0
+    # particle 3 (the wall) is put first in the particle arrays' order: it gets the last row
+    act = np.ones(4, dtype=bool)
+    order = IISPH._row_order(act, wall)
+    assert order.tolist() == [0, 1, 2, 3]
+    x, m, fluid, free, rho = x[[3, 0, 1, 2]], m[[3, 0, 1, 2]], fluid[[3, 0, 1, 2]], \
+        free[[3, 0, 1, 2]], rho[[3, 0, 1, 2]]
+    indices = np.array([1, 2, 3, 0, 2, 3, 0, 1, 3, 0, 1, 2], dtype=np.int32)
+    order = IISPH._row_order(act, fluid == 0)
+    assert order.tolist() == [1, 2, 3, 0]
+    renumbered = np.empty(4, dtype=np.int64)
+    renumbered[order] = np.arange(4)
+    ident = np.arange(4, dtype=np.int64)
+    g = np.array([0.0, -9.81])
+    dt = 1e-3
+    vs = np.array([[0.0, 0.0], [0.01, 0.0], [0.0, -0.02], [0.03, 0.0]])
+    args = (x, vs, m, rho, rho0, fluid, free)
+    tail = (h, 2, dt, 0.01, d, g, np.zeros((4, 2)), np.zeros(4), False, False)
+    A0, b0 = dense_system(assembly.ppe_csr, *args, ident, indptr, indices, *tail, n_points=4)
+    sorted_indices = sort_neighbours_by_row(indptr, indices, renumbered)
+    A1, b1 = dense_system(assembly.ppe_csr, *args, renumbered, indptr, sorted_indices, *tail,
+                          n_points=4)
+    # the same sums in another neighbour order: equal to round-off
+    assert np.allclose(A1[np.ix_(renumbered, renumbered)], A0, rtol=1e-12, atol=0)
+    assert np.allclose(b1, b0, rtol=1e-12, atol=0)
+    assert A1[3, 3] == 1.0 and A1[3, :3].sum() == pytest.approx(-1.0)  # the wall, last
+    nu = np.array([0.0, 0.1, 0.3, 0.2])
+    slip = np.zeros(4, dtype=np.uint8)
+    vargs = (x, vs, m, rho, nu, fluid, np.zeros(4), slip)
+    vtail = (h, 2, 1e-2, g, False)
+    V0, c0 = dense_system(assembly.viscous_csr, *vargs, ident, indptr, indices, *vtail,
+                          n_points=4, dim=2)
+    V1, c1 = dense_system(assembly.viscous_csr, *vargs, renumbered, indptr, sorted_indices,
+                          *vtail, n_points=4, dim=2)
+    scalar = (2 * renumbered[:, None] + np.arange(2)).reshape(-1)
+    assert np.allclose(V1[np.ix_(scalar, scalar)], V0, rtol=1e-12, atol=0)
+    assert np.allclose(c1, c0, rtol=1e-12, atol=0)
+
+
 @pytest.mark.parametrize("morris", [False, True], ids=["eq34", "morris"])
 def test_explicit_viscous_predictor_is_the_implicit_operator_at_v(morris):
     """``viscous_explicit`` is the same operator as ``viscous_csr`` applied to the present

@@ -55,7 +55,7 @@ from parsph.kernel import fac_grad, normalisation, w
 
 __all__ = ["density_and_surface", "viscous_csr", "viscous_explicit", "ghost_velocity", "ppe_csr",
            "divergence", "pressure_gradient", "pressure_gradient_corrected", "ppe_row_scale",
-           "coupling_pressure_acceleration", "has_fluid_neighbour"]
+           "coupling_pressure_acceleration", "has_fluid_neighbour", "rows_in_order"]
 
 #: eta^2 / h^2 of the viscous term (avoids 1/r^2 blowing up for coincident particles).
 ETA2 = 0.01
@@ -214,6 +214,23 @@ def _viscous_pair(m, rho, nu, fluid, i, j, r2, h, dim, dt, eta2, morris):
 
 
 @njit(cache=True)
+def rows_in_order(row, n, first):
+    """The owned particles of the system in the order of their rows: ``order[r]`` is the
+    particle of global row ``first + r``. The stage numbers the owned rows
+    ``first, first + 1, ...`` in whatever order it likes (wall rows after the fluid's,
+    see ``IISPH._row_order``); the CSR kernels write them in that order."""
+    count = 0
+    for i in range(n):
+        if row[i] >= 0:
+            count += 1
+    order = np.empty(count, np.int64)
+    for i in range(n):
+        if row[i] >= 0:
+            order[row[i] - first] = i
+    return order
+
+
+@njit(cache=True)
 def viscous_csr(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, dim, dt,
                 g, morris, first, out_ptr, out_cols, out_vals):
     """CSR block and right-hand side of the implicit viscous predictor (30)/(34).
@@ -247,10 +264,10 @@ def viscous_csr(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, d
     r = np.empty(dim)
     out_ptr[0] = 0
     k = 0
-    for i in range(n):
+    order = rows_in_order(row, n, first)
+    for q in range(order.shape[0]):
+        i = order[q]
         ri = row[i]
-        if ri < 0:
-            continue
         moving = fluid[i] or solid[i] > 0.0
         wsum = 0.0
         if not moving and not slip[i]:
@@ -424,10 +441,10 @@ def ppe_csr(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt, 
     L = np.zeros((dim, dim))
     out_ptr[0] = 0
     k = 0
-    for i in range(n):
+    order = rows_in_order(row, n, first)
+    for q in range(order.shape[0]):
+        i = order[q]
         ri = row[i]
-        if ri < 0:
-            continue
         base = k
         t = 0
         last = -1
