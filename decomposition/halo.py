@@ -19,8 +19,9 @@ Building
     be (a periodic axis on one rank). Rows farther than ``radius`` inside the own
     sub-box are discarded first (neither they nor their images can be near another
     sub-box, because the sub-boxes tile the global box); for each image shift only the
-    ranks whose sub-box is within ``radius`` of the images' bounding box are tested,
-    one vectorised distance test per such rank. Since every owned position lies in its
+    ranks whose sub-box is within ``radius`` of the shifted own sub-box are tested, in
+    one numba pass over the owned rows that writes the send list already grouped by
+    destination (at 1.0e5 owned rows, 4.4 ms in numpy before, see docs/decomposition.md). Since every owned position lies in its
     owner's closed sub-box, the owned plus halo rows of a rank contain every row within
     ``radius`` of any of its owned rows (with ``radius`` < the periodic length).
 
@@ -43,6 +44,7 @@ from __future__ import annotations
 
 import numpy as np
 from mpi4py import MPI
+from numba import njit
 
 from decomposition.comm import Tag, raise_if_any
 from decomposition.exchange import byte_view, check_field
@@ -215,41 +217,11 @@ class Halo:
             empty = np.zeros(0, dtype=np.int64)
             return cls._from_flat(comm, empty, np.zeros(1, dtype=np.int64), None, x.shape[0])
         lo_all, hi_all = rcb.subboxes()
-        my_lo, my_hi = lo_all[me], hi_all[me]
-        glo, ghi = np.asarray(box.lo), np.asarray(box.hi)
-        r2 = radius * radius
-        # Rows deeper than radius inside the own sub-box are needed nowhere.
-        inner = np.minimum(x - my_lo, my_hi - x).min(axis=1) if x.size else np.zeros(0)
-        cand = np.nonzero(inner <= radius)[0]
-        xc = x[cand]
         shifts = box.image_shifts()
-        dest_l, row_l, img_l = [], [], []
-        for m, s in enumerate(shifts):  # loop over images (at most 27)
-            y, rows = xc + s, cand
-            if m > 0:  # an image matters only near the global box
-                gap = np.maximum(0.0, np.maximum(glo - y, y - ghi))
-                keep = (gap * gap).sum(axis=1) <= r2
-                y, rows = y[keep], rows[keep]
-            if rows.size == 0:
-                continue
-            ylo, yhi = y.min(axis=0), y.max(axis=0)
-            gap = np.maximum(0.0, np.maximum(lo_all - yhi, ylo - hi_all))
-            near = (gap * gap).sum(axis=1) <= r2
-            if m == 0:
-                near[me] = False
-            for r in np.nonzero(near)[0]:  # loop over candidate ranks
-                gap = np.maximum(0.0, np.maximum(lo_all[r] - y, y - hi_all[r]))
-                hit = np.nonzero((gap * gap).sum(axis=1) <= r2)[0]
-                if hit.size:
-                    dest_l.append(np.full(hit.size, r, dtype=np.int64))
-                    row_l.append(rows[hit])
-                    img_l.append(np.full(hit.size, m, dtype=np.int64))
-        if dest_l:
-            dest, rows, img = (np.concatenate(v) for v in (dest_l, row_l, img_l))
-        else:
-            dest = rows = img = np.zeros(0, dtype=np.int64)
-        order = np.lexsort((img, rows, dest))
-        dest, rows, img = dest[order], rows[order], img[order]
+        rows, dest, img = _geometric_pattern(
+            x, radius, lo_all[me], hi_all[me], lo_all, hi_all, np.asarray(box.lo, dtype=np.float64),
+            np.asarray(box.hi, dtype=np.float64), shifts,
+            *_near_ranks(lo_all, hi_all, me, radius, shifts))
         send_counts = np.bincount(dest, minlength=size).astype(np.int64)
         send_shift = shifts[img] if box.any_periodic else None
         return cls._from_flat(comm, rows, send_counts, send_shift, x.shape[0])
@@ -360,6 +332,81 @@ class Halo:
                 np.add.at(res, self.send_index, b)
             out[name] = res
         return out
+
+
+def _near_ranks(lo_all, hi_all, me, radius, shifts):
+    """Per image shift ``m``, the ranks whose sub-box overlaps rank ``me``'s sub-box
+    grown by ``radius`` and shifted by ``shifts[m]`` (not ``me`` itself for the zero
+    shift): ``(near_ranks, n_near)``, rank ``near_ranks[m, q]`` for ``q < n_near[m]``."""
+    grown_lo, grown_hi = lo_all[me] - radius, hi_all[me] + radius
+    near = np.empty((len(shifts), len(lo_all)), dtype=np.bool_)
+    for m, s in enumerate(shifts):
+        near[m] = ((lo_all <= grown_hi + s) & (hi_all >= grown_lo + s)).all(axis=1)
+    near[0, me] = False
+    n_near = near.sum(axis=1).astype(np.int64)
+    near_ranks = np.zeros((len(shifts), max(1, int(n_near.max()))), dtype=np.int64)
+    for m in range(len(shifts)):
+        near_ranks[m, :n_near[m]] = np.flatnonzero(near[m])
+    return near_ranks, n_near
+
+
+@njit(cache=True)
+def _gap2(y, lo, hi):
+    """Squared distance (m^2) from point ``y`` to the closed box ``[lo, hi]``."""
+    g2 = 0.0
+    for a in range(y.shape[0]):
+        g = max(0.0, lo[a] - y[a], y[a] - hi[a])
+        g2 += g * g
+    return g2
+
+
+@njit(cache=True)
+def _geometric_pattern(x, radius, my_lo, my_hi, lo_all, hi_all, glo, ghi, shifts, near_ranks,
+                       n_near):
+    """The send list of :meth:`Halo.build` in one pass over the owned rows (numba):
+    ``(rows, dest, img)`` ordered by destination rank, then row, then image. A row
+    deeper than ``radius`` inside the own sub-box is skipped; image ``m > 0`` counts only
+    within ``radius`` of the global box; for image ``m`` only the ranks
+    ``near_ranks[m, :n_near[m]]`` (ascending) are tested."""
+    n, dim = x.shape
+    n_img = shifts.shape[0]
+    size = lo_all.shape[0]
+    r2 = radius * radius
+    y = np.empty(dim)
+    counts = np.zeros(size, np.int64)
+    for fill in range(2):
+        if fill:
+            start = np.zeros(size + 1, np.int64)
+            for r in range(size):
+                start[r + 1] = start[r] + counts[r]
+            rows = np.empty(start[size], np.int64)
+            dest = np.empty(start[size], np.int64)
+            img = np.empty(start[size], np.int64)
+            cursor = start[:size].copy()
+        for i in range(n):
+            inner = np.inf
+            for a in range(dim):
+                inner = min(inner, x[i, a] - my_lo[a], my_hi[a] - x[i, a])
+            if inner > radius:
+                continue
+            for m in range(n_img):
+                for a in range(dim):
+                    y[a] = x[i, a] + shifts[m, a]
+                if m > 0 and _gap2(y, glo, ghi) > r2:
+                    continue
+                for q in range(n_near[m]):
+                    r = near_ranks[m, q]
+                    if _gap2(y, lo_all[r], hi_all[r]) > r2:
+                        continue
+                    if fill:
+                        k = cursor[r]
+                        rows[k] = i
+                        dest[k] = r
+                        img[k] = m
+                        cursor[r] = k + 1
+                    else:
+                        counts[r] += 1
+    return rows, dest, img
 
 
 def proximity_halo(comm, x_owned, select, radius: float, lo, hi) -> Halo:

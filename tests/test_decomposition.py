@@ -410,6 +410,41 @@ def test_halo_from_send_lists(comm):
         Halo.from_send_lists(comm, send_index[:-1] if me == 0 else send_index)
 
 
+@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("periodic_first", [False, True])
+def test_halo_send_list_of_many_ranks_is_the_brute_force_one(dim, periodic_first):
+    """The pruned one-pass send list of ``Halo.build`` (12 sub-boxes, periodic images)
+    is every (rank, row, image) within the radius, tested without pruning, in that order."""
+    import itertools
+
+    from decomposition.halo import _geometric_pattern, _near_ranks
+
+    rng = np.random.default_rng(dim + 2 * periodic_first)
+    periodic = (periodic_first,) + (True,) * (dim - 1)
+    box = Box((0.0,) * dim, (1.0, 0.7, 0.5)[:dim], periodic)
+    nx = (3, 2, 2)[:dim]
+    cuts = [np.concatenate([[0.0], np.sort(rng.uniform(0.2, 0.8, k - 1)) * hi, [hi]])
+            for k, hi in zip(nx, box.hi)]
+    cells = list(itertools.product(*[range(k) for k in nx]))
+    lo_all = np.array([[cuts[a][c[a]] for a in range(dim)] for c in cells])
+    hi_all = np.array([[cuts[a][c[a] + 1] for a in range(dim)] for c in cells])
+    shifts = box.image_shifts()
+    radius = 0.08
+    for me in (0, len(cells) - 1, 5):
+        x = lo_all[me] + rng.random((800, dim)) * (hi_all[me] - lo_all[me])
+        expect = sorted(
+            (r, i, m) for i in range(len(x)) for m, s in enumerate(shifts)
+            if m == 0 or np.linalg.norm(np.maximum(0, np.maximum(box.lo - x[i] - s,
+                                                                 x[i] + s - box.hi))) <= radius
+            for r in range(len(cells)) if (r, m) != (me, 0)
+            and np.linalg.norm(np.maximum(0, np.maximum(lo_all[r] - x[i] - s,
+                                                        x[i] + s - hi_all[r]))) <= radius)
+        rows, dest, img = _geometric_pattern(x, radius, lo_all[me], hi_all[me], lo_all, hi_all,
+                                             box.lo, box.hi, shifts,
+                                             *_near_ranks(lo_all, hi_all, me, radius, shifts))
+        assert list(zip(dest.tolist(), rows.tolist(), img.tolist())) == expect
+
+
 def test_halo_rejects_bad_radius(comm):
     box = Box((0.0, 0.0), (0.3, 1.0), (True, False))
     rcb = RCB.build(comm, np.zeros((0, 2)), box)
