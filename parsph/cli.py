@@ -104,6 +104,23 @@ def split_petsc_options(extra: list[str]) -> list[str]:
     return petsc
 
 
+def _check_scene_is_no_petsc_value(argv: list[str], scene: str) -> None:
+    """``parsph run -ppe_pc_hypre_boomeramg_agg_nl 1`` (no scene named) makes argparse take
+    the option's value ``1`` for the scene: say so, instead of "unknown scene '1'"."""
+    from parsph.scene import builtin_names
+
+    if scene not in argv or os.path.isfile(scene) or scene in builtin_names():
+        return
+    at = argv.index(scene)
+    prev = argv[at - 1] if at > 0 else ""
+    if prev.startswith("-") and not prev.startswith("--") and len(prev) > 2 \
+            and not _is_number(prev):
+        raise ParsphError(
+            f"'{scene}' follows the PETSc option '{prev}' and is no scene; name the scene "
+            f"before PETSc options that take a value, e.g. `parsph run slope_failure {prev} "
+            f"{scene}`")
+
+
 def _is_number(tok: str) -> bool:
     try:
         float(tok)
@@ -212,6 +229,8 @@ def main(argv=None) -> int:
             raise ParsphError(f"no command given; commands: {', '.join(VERBS)} "
                               f"(see `parsph --help`)")
         petsc = split_petsc_options(extra) if args.verb in ("run", "study") else []
+        if args.verb in ("run", "study"):
+            _check_scene_is_no_petsc_value(argv, args.scene)
         if extra and args.verb not in ("run", "study"):
             raise ParsphError(f"unexpected argument(s) {' '.join(extra)} for `parsph {args.verb}`")
         if args.verb == "run":

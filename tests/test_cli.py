@@ -81,6 +81,7 @@ BAD_INPUT = [
     (["run", "hydrostatic", "--set", "domain.dim=4"], "domain.dim"),
     (["run", "hydrostatic", "--set", "run.end_time=nan"], "run.end_time"),
     (["run", "hydrostatic", "--bogus"], "unknown option '--bogus'"),
+    (["run", "-ppe_ksp_rtol", "1e-10"], "name the scene before PETSc options"),
     (["check", "hydrostatic", "--set", "walls.0.sides=[\"roof\"]"], "walls[0].sides"),
     (["plot", "/nonexistent/dir"], "/nonexistent/dir"),
     (["check", "triaxial_light", "--set", "domain.particle_size=0.0002"], "GiB"),
