@@ -86,39 +86,47 @@ def cmd_study(comm, args, petsc) -> int:
     return EXIT_OK
 
 
-def split_petsc_options(extra: list[str]) -> list[str]:
-    """Leftover arguments are PETSc options (``-name [value]``); anything else is an error."""
-    petsc, prev_option = [], False
-    for tok in extra:
-        if tok.startswith("--"):
-            raise ParsphError(f"unknown option '{tok}' (see `parsph run --help`; PETSc options "
-                              f"take a single dash, e.g. -ppe_ksp_monitor)")
-        if tok.startswith("-") and not _is_number(tok):
-            petsc.append(tok)
-            prev_option = True
-        elif prev_option:
-            petsc.append(tok)
-            prev_option = False
-        else:
-            raise ParsphError(f"unexpected argument '{tok}' (see `parsph --help`)")
-    return petsc
+def _is_petsc_option(tok: str) -> bool:
+    """``-name`` with one dash and a name of two or more characters (parsph's own short
+    flags are ``-h`` and ``-v``; its long options have two dashes)."""
+    return tok.startswith("-") and not tok.startswith("--") and len(tok) > 2 \
+        and not _is_number(tok)
 
 
-def _check_scene_is_no_petsc_value(argv: list[str], scene: str) -> None:
-    """``parsph run -ppe_pc_hypre_boomeramg_agg_nl 1`` (no scene named) makes argparse take
-    the option's value ``1`` for the scene: say so, instead of "unknown scene '1'"."""
+def split_petsc_options(argv: list[str]) -> tuple[list[str], list[str]]:
+    """``(parsph arguments, PETSc options)``: the PETSc options (``-name [value]``, the
+    value being the next argument unless it starts with a dash and is no number, as
+    PETSc reads them) are taken out before argparse sees the rest. argparse alone would
+    read ``-visc_ksp_monitor`` as ``-v isc_ksp_monitor`` and the value of ``-ppe_ksp_rtol
+    1e-10`` as the scene.
+
+    Raises
+    ------
+    ParsphError
+        If the value of a PETSc option is a scene (``parsph run -ppe_ksp_monitor
+        dam_break``): the scene must come before PETSc options that may take a value.
+    """
     from parsph.scene import builtin_names
 
-    if scene not in argv or os.path.isfile(scene) or scene in builtin_names():
-        return
-    at = argv.index(scene)
-    prev = argv[at - 1] if at > 0 else ""
-    if prev.startswith("-") and not prev.startswith("--") and len(prev) > 2 \
-            and not _is_number(prev):
-        raise ParsphError(
-            f"'{scene}' follows the PETSc option '{prev}' and is no scene; name the scene "
-            f"before PETSc options that take a value, e.g. `parsph run slope_failure {prev} "
-            f"{scene}`")
+    ours, petsc = [], []
+    i = 0
+    while i < len(argv):
+        tok = argv[i]
+        if not _is_petsc_option(tok):
+            ours.append(tok)
+            i += 1
+            continue
+        petsc.append(tok)
+        value = argv[i + 1] if i + 1 < len(argv) else None
+        if value is not None and (not value.startswith("-") or _is_number(value)):
+            if value in builtin_names() or value.endswith(".toml"):
+                raise ParsphError(
+                    f"'{value}' follows the PETSc option '{tok}' and would be its value; name "
+                    f"the scene before PETSc options, e.g. `parsph run {value} {tok}`")
+            petsc.append(value)
+            i += 1
+        i += 1
+    return ours, petsc
 
 
 def _is_number(tok: str) -> bool:
@@ -223,16 +231,22 @@ def main(argv=None) -> int:
     comm = world()
     argv = sys.argv[1:] if argv is None else list(argv)
     try:
-        args, extra = _parser().parse_known_args(argv)
+        ours, petsc = split_petsc_options(argv)
+        args, extra = _parser().parse_known_args(ours)
         setup_logging(comm, verbose=getattr(args, "verbose", False))
         if args.verb is None:
             raise ParsphError(f"no command given; commands: {', '.join(VERBS)} "
                               f"(see `parsph --help`)")
-        petsc = split_petsc_options(extra) if args.verb in ("run", "study") else []
-        if args.verb in ("run", "study"):
-            _check_scene_is_no_petsc_value(argv, args.scene)
-        if extra and args.verb not in ("run", "study"):
-            raise ParsphError(f"unexpected argument(s) {' '.join(extra)} for `parsph {args.verb}`")
+        for tok in extra:
+            if tok.startswith("--"):
+                raise ParsphError(f"unknown option '{tok}' (see `parsph {args.verb} --help`; "
+                                  f"PETSc options take a single dash, e.g. -ppe_ksp_monitor)")
+        if extra:
+            raise ParsphError(f"unexpected argument(s) {' '.join(extra)} for `parsph {args.verb}` "
+                              f"(see `parsph {args.verb} --help`)")
+        if petsc and args.verb not in ("run", "study"):
+            raise ParsphError(f"unexpected argument(s) {' '.join(petsc)} for `parsph {args.verb}` "
+                              f"(PETSc options go to `parsph run` and `parsph study`)")
         if args.verb == "run":
             return cmd_run(comm, args, petsc)
         if args.verb == "check":

@@ -81,7 +81,8 @@ BAD_INPUT = [
     (["run", "hydrostatic", "--set", "domain.dim=4"], "domain.dim"),
     (["run", "hydrostatic", "--set", "run.end_time=nan"], "run.end_time"),
     (["run", "hydrostatic", "--bogus"], "unknown option '--bogus'"),
-    (["run", "-ppe_ksp_rtol", "1e-10"], "name the scene before PETSc options"),
+    (["run", "-ppe_ksp_monitor", "dam_break"], "name the scene before PETSc options"),
+    (["scenes", "-ppe_ksp_monitor"], "PETSc options go to"),
     (["check", "hydrostatic", "--set", "walls.0.sides=[\"roof\"]"], "walls[0].sides"),
     (["plot", "/nonexistent/dir"], "/nonexistent/dir"),
     (["check", "triaxial_light", "--set", "domain.particle_size=0.0002"], "GiB"),
@@ -89,6 +90,21 @@ BAD_INPUT = [
       "materials.water.poisson_ratio=0.3", "--set", "materials.water.young_modulus=1e6"],
      "materials.water.viscosity"),
 ]
+
+
+def test_petsc_options_are_split_off_before_argparse():
+    """``-visc_...`` is no ``-v``, and an option's value is no scene (PETSc's reading:
+    the next argument unless it starts with a dash and is no number)."""
+    from parsph.cli import split_petsc_options
+
+    ours, petsc = split_petsc_options(
+        ["run", "-visc_ksp_monitor", "-ppe_ksp_rtol", "1e-10", "-v", "--set", "a.b=-1",
+         "-ppe_pc_hypre_boomeramg_agg_nl", "1", "-x_shift", "-2.5", "-log_view"])
+    assert ours == ["run", "-v", "--set", "a.b=-1"]
+    assert petsc == ["-visc_ksp_monitor", "-ppe_ksp_rtol", "1e-10", "-ppe_pc_hypre_boomeramg_agg_nl",
+                     "1", "-x_shift", "-2.5", "-log_view"]
+    ours, petsc = split_petsc_options(["run", "dam_break", "-ppe_ksp_monitor", "--out", "o"])
+    assert ours == ["run", "dam_break", "--out", "o"] and petsc == ["-ppe_ksp_monitor"]
 
 
 @pytest.mark.parametrize("ranks", [1, 2])
