@@ -124,6 +124,10 @@ class LinearSystem:
         Solves that may share one preconditioner set-up (1: a fresh set-up for every new
         matrix). A set-up is only kept for a matrix whose caller declares the same
         unknowns (``assemble_csr(..., same_unknowns=True)``); see Notes.
+    hypre_options : dict of str to str, optional
+        More BoomerAMG defaults of this system, e.g. ``{"pc_hypre_boomeramg_agg_nl":
+        "1"}`` (without the prefix), set like the smoother's: options given in the
+        database win.
 
     Attributes
     ----------
@@ -180,6 +184,7 @@ class LinearSystem:
         max_it: int = 1000,
         symmetric: bool | None = None,
         reuse_preconditioner: int = 1,
+        hypre_options: dict | None = None,
     ):
         PETSc = petsc_env.petsc()
         self._PETSc = PETSc
@@ -216,11 +221,12 @@ class LinearSystem:
         self._mat = None
         self._nullspace = None
         self._pattern = None  # indptr, indices (+ keys, inverse, rows, cols from triplets) of the last assembly
-        self._ksp = self._create_ksp(ksp_type, pc_type, rtol, atol, max_it)
+        self._ksp = self._create_ksp(ksp_type, pc_type, rtol, atol, max_it,
+                                     {**_HYPRE_DEFAULTS, **(hypre_options or {})})
 
     # -- set-up ---------------------------------------------------------------------
 
-    def _create_ksp(self, ksp_type, pc_type, rtol, atol, max_it):
+    def _create_ksp(self, ksp_type, pc_type, rtol, atol, max_it, hypre_defaults):
         """Defaults in code, then the options prefix, then ``setFromOptions``."""
         PETSc = self._PETSc
         ksp = PETSc.KSP().create(comm=self.comm)
@@ -237,10 +243,12 @@ class LinearSystem:
             # on each visit: at 2.0e5 PPE rows the same iterations (5-11), 35 % less time
             # per solve. The options database still wins (also ..._relax_type_all).
             opts = PETSc.Options()
-            if not opts.hasName(self.prefix + "pc_hypre_boomeramg_relax_type_all"):
-                for key, value in _HYPRE_DEFAULTS.items():
-                    if not opts.hasName(self.prefix + key):
-                        opts.setValue(self.prefix + key, value)
+            relax_all = opts.hasName(self.prefix + "pc_hypre_boomeramg_relax_type_all")
+            for key, value in hypre_defaults.items():
+                if relax_all and key.startswith("pc_hypre_boomeramg_relax_type_"):
+                    continue
+                if not opts.hasName(self.prefix + key):
+                    opts.setValue(self.prefix + key, value)
         ksp.setTolerances(rtol=rtol, atol=atol, max_it=max_it)
         ksp.setOptionsPrefix(self.prefix)
         ksp.setFromOptions()

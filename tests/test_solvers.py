@@ -450,6 +450,11 @@ def test_lagged_preconditioner_is_dropped_when_it_fails_or_degrades(comm):
 
 def _smoother(comm, system, tmp):
     """The 'Relax down' line of the KSP's view (the BoomerAMG smoother it uses)."""
+    return _view_value(comm, system, tmp, "Relax down")
+
+
+def _view_value(comm, system, tmp, words):
+    """Last word of the first ``KSPView`` line of ``system`` containing ``words``."""
     PETSc = petsc_env.petsc()
     path = os.path.join(tmp, f"view_{system.prefix}.txt")
     viewer = PETSc.Viewer().createASCII(path, comm=comm)
@@ -457,7 +462,30 @@ def _smoother(comm, system, tmp):
     viewer.destroy()
     comm.Barrier()
     with open(path) as fh:
-        return [line.split()[-1] for line in fh if "Relax down" in line][0]
+        return [line.split()[-1] for line in fh if words in line][0]
+
+
+def test_hypre_options_are_defaults_the_options_database_overrides(comm, mpi_tmp_path):
+    """``LinearSystem(hypre_options=...)`` (the PPE's aggressive coarsening) sets BoomerAMG
+    options under the prefix; -{prefix}pc_hypre_boomeramg_agg_nl given by the user wins."""
+    if not petsc_env.has_hypre():
+        pytest.skip("this PETSc has no hypre")
+    PETSc = petsc_env.petsc()
+    n = 16
+    for prefix, asked, expect in (("aggd_", None, "1"), ("aggu_", "0", "0"), ("aggn_", "", "0")):
+        if asked:
+            PETSc.Options().setValue(prefix + "pc_hypre_boomeramg_agg_nl", asked)
+        extra = {"pc_hypre_boomeramg_agg_nl": "1"} if asked != "" else None
+        try:
+            with LinearSystem(comm, prefix, block_rows(comm, n * n), hypre_options=extra) as system:
+                first, stop = system.owned_range
+                system.assemble(*poisson_triplets(n, np.arange(first, stop)))
+                system.solve(rhs_of(n * n)[first:stop])
+                assert _view_value(comm, system, mpi_tmp_path, "aggressive coarsening") == expect
+                assert _smoother(comm, system, mpi_tmp_path) == "l1-Gauss-Seidel"
+        finally:
+            if asked:
+                PETSc.Options().delValue(prefix + "pc_hypre_boomeramg_agg_nl")
 
 
 def test_boomeramg_smoother_defaults_to_l1_gauss_seidel_unless_asked(comm, mpi_tmp_path):

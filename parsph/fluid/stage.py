@@ -34,6 +34,12 @@ from parsph.fluid.walls import wall_slip
 from parsph.materials import PHASE_FLUID, PHASE_WALL
 from solvers.csr import sort_neighbours_by_row
 
+#: BoomerAMG defaults of the PPE beyond the smoother every system gets
+#: (``solvers.system._HYPRE_DEFAULTS``); ``-ppe_pc_hypre_boomeramg_agg_nl 0`` undoes it.
+#: The viscous system keeps plain coarsening: its Bingham viscosity varies by orders of
+#: magnitude, and the slope_failure demo's viscous solves gained nothing measurable.
+PPE_HYPRE_OPTIONS = {"pc_hypre_boomeramg_agg_nl": "1"}
+
 STATS = ("viscous_number", "visc_iterations", "visc_residual", "ppe_iterations", "ppe_residual",
          "ppe_setup",
          "n_free_surface", "fluid_contacts", "max_divergence", "wall_s_fluid_assembly",
@@ -138,9 +144,12 @@ class IISPH:
 
             self.destroy()
             tol = dict(max_it=self.num.max_it)
+            # aggressive coarsening on the finest level (agg_nl 1): the same PPE
+            # iterations, 30 % cheaper V-cycles and set-ups (docs/solvers.md)
             self._ppe = LinearSystem(ctx.comm, "ppe_", n, ksp_type="gmres",
                                      rtol=self.num.ppe_rtol,
-                                     reuse_preconditioner=self.num.preconditioner_reuse, **tol)
+                                     reuse_preconditioner=self.num.preconditioner_reuse,
+                                     hypre_options=PPE_HYPRE_OPTIONS, **tol)
             # the viscous matrix of a Bingham fluid changes too much from step to step (its
             # viscosity follows the strain rate): a lagged set-up made the slope_failure
             # demo's viscous solves 43 % slower, so it is set up afresh every step
