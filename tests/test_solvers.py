@@ -353,8 +353,14 @@ def test_assemble_csr_matches_triplets_and_reuses_the_pattern(comm):
         assert_matches(x, rhs_of(total)[first:stop])
         with pytest.raises(ValueError, match="global range"):
             system.assemble_csr(indptr, c + system.n_global, v)
+        with pytest.raises(ValueError, match="global range"):
+            system.assemble_csr(indptr, c - system.n_global, v)
         with pytest.raises(SolverError, match="NaN"):
             system.assemble_csr(indptr, c, np.full(v.size, np.nan))
+        inf = v.copy()
+        inf[-1:] = -np.inf
+        with pytest.raises(SolverError, match="NaN or infinite"):
+            system.assemble_csr(indptr, c, inf)
 
 
 def _poisson_csr(n, first, stop, shift=0.0, extra=False):
