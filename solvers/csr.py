@@ -55,10 +55,9 @@ def split_diagonal_block(indptr, cols, vals, first, stop):
     arrays, each row's columns in their input order; and a copy of ``cols`` (the
     pattern the caller keeps; PETSc renumbers ``oj`` in place).
 
-    One numba pass over the block into arrays numpy allocates: numpy asks the kernel for
-    huge pages where it can, numba's allocator does not, and the page faults of 112 MB
-    of fresh 4 kB pages (4.1e6 entries) were most of the split's time. ``dj, dv, oj, ov``
-    are views of arrays of the block's length; pages never written are never touched.
+    One numba pass over the block (about 7 ms at 4.1e6 entries, bound by memory traffic:
+    48 MB read, 64 MB written). ``dj, dv, oj, ov`` are views of arrays of the block's
+    length; pages never written are never touched.
     """
     n = indptr.shape[0] - 1
     nnz = int(indptr[n])
