@@ -48,35 +48,35 @@ def check_block(cols, vals):
     return lo, hi, bad
 
 
+@njit(cache=True)
 def split_diagonal_block(indptr, cols, vals, first, stop):
     """The CSR block of a rank's rows split into its diagonal part (columns in
     ``[first, stop)``, renumbered from 0) and its off-diagonal part (global columns), as
     ``MatCreateMPIAIJWithSplitArrays`` takes them: ``(di, dj, dv), (oi, oj, ov)``, fresh
     arrays, each row's columns in their input order; and a copy of ``cols`` (the
-    pattern the caller keeps; PETSc renumbers ``oj`` in place).
+    pattern the caller keeps; PETSc renumbers ``oj`` in place), written in the pass that
+    counts the diagonal entries.
 
-    One numba pass over the block (about 7 ms at 4.1e6 entries, bound by memory traffic:
-    48 MB read, 64 MB written). ``dj, dv, oj, ov`` are views of arrays of the block's
-    length; pages never written are never touched.
+    The arrays are allocated here, at their exact sizes: allocated by numpy at the
+    block's length instead, the split of the 2.0e5-particle dam break's PPE took 12.7 ms
+    per step on 2 ranks instead of 6.2 ms (fresh pages on every step).
     """
     n = indptr.shape[0] - 1
-    nnz = int(indptr[n])
-    di = np.empty(n + 1, indptr.dtype)
-    oi = np.empty(n + 1, indptr.dtype)
-    dj = np.empty(nnz, cols.dtype)
-    dv = np.empty(nnz)
-    oj = np.empty(nnz, cols.dtype)
-    ov = np.empty(nnz)
+    nnz = indptr[n]
     pattern = np.empty(nnz, cols.dtype)
-    p, q = _split_into(indptr, cols, vals, first, stop, di, dj, dv, oi, oj, ov, pattern)
-    return (di, dj[:p], dv[:p]), (oi, oj[:q], ov[:q]), pattern
-
-
-@njit(cache=True)
-def _split_into(indptr, cols, vals, first, stop, di, dj, dv, oi, oj, ov, pattern):
-    """The pass of :func:`split_diagonal_block`; returns the diagonal and off-diagonal
-    entry counts."""
-    n = indptr.shape[0] - 1
+    nd = 0
+    for k in range(nnz):
+        c = cols[k]
+        pattern[k] = c
+        if first <= c < stop:
+            nd += 1
+    no = nnz - nd
+    di = np.empty(n + 1, indptr.dtype)
+    dj = np.empty(nd, cols.dtype)
+    dv = np.empty(nd)
+    oi = np.empty(n + 1, indptr.dtype)
+    oj = np.empty(no, cols.dtype)
+    ov = np.empty(no)
     di[0] = 0
     oi[0] = 0
     p = 0
@@ -84,7 +84,6 @@ def _split_into(indptr, cols, vals, first, stop, di, dj, dv, oi, oj, ov, pattern
     for i in range(n):
         for k in range(indptr[i], indptr[i + 1]):
             c = cols[k]
-            pattern[k] = c
             if first <= c < stop:
                 dj[p] = c - first
                 dv[p] = vals[k]
@@ -95,4 +94,4 @@ def _split_into(indptr, cols, vals, first, stop, di, dj, dv, oi, oj, ov, pattern
                 q += 1
         di[i + 1] = p
         oi[i + 1] = q
-    return p, q
+    return (di, dj, dv), (oi, oj, ov), pattern
