@@ -222,6 +222,7 @@ class LinearSystem:
         self._mat = None
         self._nullspace = None
         self._pattern = None  # indptr, indices (+ keys, inverse, rows, cols from triplets) of the last assembly
+        self._array_sets = ({}, {})  # arrays of the matrices built on arrays, see _array
         self._ksp = self._create_ksp(ksp_type, pc_type, rtol, atol, max_it,
                                      {**_HYPRE_DEFAULTS, **(hypre_options or {})})
 
@@ -257,7 +258,8 @@ class LinearSystem:
 
     @property
     def mat(self):
-        """The current ``PETSc.Mat`` (None before the first :meth:`assemble`)."""
+        """The current ``PETSc.Mat`` (None before the first :meth:`assemble`); destroyed,
+        and its arrays reused, when a later assembly builds a new matrix."""
         return self._mat
 
     @property
@@ -482,17 +484,28 @@ class LinearSystem:
             # PETSc takes the arrays as they are (MatCreateSeqAIJWithArrays, or
             # MatCreateMPIAIJWithSplitArrays after a numba split into the diagonal and
             # off-diagonal blocks): no row-by-row insertion. 2.0e5 rows: 33 -> 4 ms on 1
-            # rank, 23 -> 9 ms on 2. The matrix keeps references to fresh arrays.
+            # rank, 23 -> 9 ms on 2. The matrix keeps references to its arrays, which
+            # come from one of two sets used in turn (see _array): the matrix of the build
+            # before last, the last user of this set, has been destroyed.
+            nnz = indices.size
             if self.comm.size == 1:
-                if not fresh:
-                    indptr, indices = indptr.copy(), indices.copy()
-                csr = (indptr, indices, np.array(data, dtype=np.float64))
+                ptr = self._array("ptr", indptr.size, indptr.dtype)
+                cols = self._array("cols", nnz, indices.dtype)
+                vals = self._array("vals", nnz, np.float64)
+                np.copyto(ptr, indptr)
+                np.copyto(cols, indices)
+                np.copyto(vals, data)
+                csr = (ptr, cols, vals)
+                indptr, indices = ptr, cols
             else:
                 first, stop = self.owned_range
-                diagonal, off, copied = split_diagonal_block(indptr, indices, data, first, stop)
-                csr = (diagonal, off)
-                if not fresh:
-                    indptr, indices = indptr.copy(), copied
+                di, oi = (self._array(k, indptr.size, indptr.dtype) for k in ("di", "oi"))
+                dj, oj, pattern = (self._array(k, nnz, indices.dtype) for k in ("dj", "oj", "pattern"))
+                dv, ov = (self._array(k, nnz, np.float64) for k in ("dv", "ov"))
+                p, q = split_diagonal_block(indptr, indices, data, first, stop,
+                                            di, dj, dv, oi, oj, ov, pattern)
+                csr = ((di, dj[:p], dv[:p]), (oi, oj[:q], ov[:q]))
+                indptr, indices = indptr.copy(), pattern
             mat = PETSc.Mat().createAIJWithArrays(sizes, csr, comm=self.comm)
             mat.setOptionsPrefix(self.prefix)
         else:  # keeps the block size (BoomerAMG's number of functions)
@@ -518,6 +531,21 @@ class LinearSystem:
         self._mat = mat
         self._pattern = dict(indptr=indptr, indices=indices)
         self.n_builds += 1
+
+    def _array(self, name: str, size: int, dtype) -> np.ndarray:
+        """Work array ``name`` of ``size`` entries from the set of this build.
+
+        Two sets are used in turn, one per build: a matrix created on arrays (block size
+        1) keeps using them until it is destroyed, which happens in the next build, so
+        the build after that may overwrite them. Reused arrays spare the page faults of
+        fresh ones (see :func:`solvers.csr.split_diagonal_block`). Grown by a quarter
+        when too small."""
+        store = self._array_sets[self.n_builds % 2]
+        a = store.get(name)
+        if a is None or a.size < size or a.dtype != np.dtype(dtype):
+            a = np.empty(size + size // 4, dtype=dtype)
+            store[name] = a
+        return a[:size]
 
     def _lag(self, same_unknowns: bool) -> None:
         """Keep the last preconditioner set-up for the next solve, or ask for a fresh one.
@@ -647,6 +675,7 @@ class LinearSystem:
                     obj.destroy()
         self._ksp = self._mat = self._nullspace = self._x = self._b = None
         self._pattern = None
+        self._array_sets = ({}, {})
 
     def __enter__(self) -> "LinearSystem":
         return self
