@@ -292,6 +292,30 @@ def test_rank_without_rows_takes_part(comm):
         assert_matches(x, reference[first:stop])
 
 
+def test_resize_keeps_the_ksp_and_solves_over_the_new_rows(comm):
+    """``resize`` (particles moved between ranks): new row counts per rank, a new global
+    size too, the same KSP object; the next assembly builds, the next solve sets up."""
+    with LinearSystem(comm, "rsz_", block_rows(comm, 12 * 12), rtol=KSP_RTOL_EXACT,
+                      reuse_preconditioner=4) as system:
+        ksp = system.ksp
+        for n, shift in ((12, 0), (16, 1)):  # 144 then 256 points, split unevenly
+            total = n * n
+            if n == 16:  # rank 0 takes 7 rows of rank 1
+                moved = {0: 7, 1: -7}.get(comm.rank, 0) if comm.size > 1 else 0
+                system.resize(block_rows(comm, total) + moved)
+            assert system.n_global == total and system.ksp is ksp
+            first, stop = system.owned_range
+            setups = system.n_setups
+            system.assemble(*poisson_triplets(n, np.arange(first, stop)))
+            x, info = system.solve(rhs_of(total)[first:stop])
+            assert info["fresh_setup"] and system.n_setups == setups + 1
+            reference = spla.spsolve(full_matrix(total, poisson_triplets(n, np.arange(total))),
+                                     rhs_of(total))
+            assert_matches(x, reference[first:stop])
+        with pytest.raises(ValueError, match="n_local_rows >= 0|negative number of rows"):
+            system.resize(-1 if comm.rank == 0 else 5)
+
+
 def test_destroy_is_idempotent_and_solve_needs_assembly(comm):
     system = LinearSystem(comm, "tst_", 3)
     with pytest.raises(RuntimeError, match="assemble"):

@@ -139,7 +139,13 @@ class IISPH:
 
     def _systems(self, ctx, n):
         """The two linear systems for ``n`` rows on this rank (collective)."""
-        if global_any(ctx.comm, n != self._n_rows) or self._ppe is None:
+        if self._ppe is not None and global_any(ctx.comm, n != self._n_rows):
+            # particles moved between ranks: the same systems over the new rows
+            self._ppe.resize(n)
+            self._visc.resize(n)
+            self._n_rows = n
+            self._ppe_ids = None
+        if self._ppe is None:
             from solvers import LinearSystem
 
             self.destroy()
