@@ -21,9 +21,10 @@ Building
     sub-box, because the sub-boxes tile the global box); for each image shift only the
     ranks whose sub-box is within ``radius`` of the shifted own sub-box are tested, in
     one numba pass over the owned rows that writes the send list already grouped by
-    destination (at 1.0e5 owned rows, 4.4 ms in numpy before, see docs/decomposition.md). Since every owned position lies in its
-    owner's closed sub-box, the owned plus halo rows of a rank contain every row within
-    ``radius`` of any of its owned rows (with ``radius`` < the periodic length).
+    destination (at 1.0e5 owned rows, 4.4 ms in numpy before, see docs/decomposition.md).
+    Since every owned position lies in its owner's closed sub-box, the owned plus halo
+    rows of a rank contain every row within ``radius`` of any of its owned rows (with
+    ``radius`` < the periodic length).
 
 Exchanging
     Each field travels as raw bytes (``MPI.BYTE``), one non-blocking message per field

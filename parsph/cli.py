@@ -108,6 +108,7 @@ def split_petsc_options(argv: list[str]) -> tuple[list[str], list[str]]:
     """
     from parsph.scene import builtin_names
 
+    scenes = builtin_names()
     ours, petsc = [], []
     i = 0
     while i < len(argv):
@@ -119,7 +120,7 @@ def split_petsc_options(argv: list[str]) -> tuple[list[str], list[str]]:
         petsc.append(tok)
         value = argv[i + 1] if i + 1 < len(argv) else None
         if value is not None and (not value.startswith("-") or _is_number(value)):
-            if value in builtin_names() or value.endswith(".toml"):
+            if value in scenes or value.endswith(".toml"):
                 raise ParsphError(
                     f"'{value}' follows the PETSc option '{tok}' and would be its value; name "
                     f"the scene before PETSc options, e.g. `parsph run {value} {tok}`")

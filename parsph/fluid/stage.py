@@ -266,10 +266,11 @@ class IISPH:
         # rows of the systems: fluid rows, boundary rows with a fluid neighbour and every
         # wall row (a dry one is the identity row p = 0, v = v_wall): the rows then stay the
         # same particles while the fluid runs along a wall, which keeps the AMG set-up
+        is_wall = p["phase"][:n] == PHASE_WALL
         act = (fluid[:n] | assembly.has_fluid_neighbour(fluid, ctx.indptr, ctx.indices)
-               | (p["phase"][:n] == PHASE_WALL)) == 1
+               | is_wall) == 1
         # the rows in order: fluid and solid rows, then the walls (see _row_order)
-        order = self._row_order(act, p["phase"][:n] == PHASE_WALL)
+        order = self._row_order(act, is_wall)
         n_act = len(order)
         ppe, visc = self._systems(ctx, n_act)
         offset, _ = global_offset(ctx.comm, n_act)
