@@ -36,9 +36,10 @@ class FluidNumerics:
     free_surface_gamma: float = spec(0.25, doc="free surface also where h |sum_j V_j grad W_ij| > "
                                      "gamma (incomplete support; 0.56 on a flat surface, 0.03 one "
                                      "layer below)", gt=0.0)
-    free_surface_min_fluid: int = spec(4, doc="coupled scenes: a fluid particle with fewer "
+    free_surface_min_fluid: int = spec(6, doc="coupled scenes: a fluid particle with fewer "
                                        "fluid neighbours than this, a solid neighbour and a full "
-                                       "support is a pocket in the soil (singular PPE rows): its "
+                                       "support is a pocket in the soil (singular PPE rows, or a "
+                                       "band too thin for the partitioned coupling): its "
                                        "pressure is the mean pressure of its solid neighbours "
                                        "(held to it, by a wall; 0 = off)", ge=0)
     surface_wall_contact: bool = spec(True, doc="a free-surface particle (p = 0, which the "

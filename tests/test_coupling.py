@@ -477,12 +477,15 @@ def test_phase_change_one_vs_two_ranks(comm, mpi_tmp_path):
 
 def test_slope_failure_fluidises_and_runs_out_further(comm, mpi_tmp_path):
     """Section 6.2: with phase change the slope's toe runs out much further than the
-    TLSPH-only slope (which stops within ~0.1 m), at t = 0.7 s already, and the run-out
-    decelerates on the floor. Before the wall contact of free-surface fluid particles a
-    particle was thrown out at ~1.3-1.5 s. The steep scarp left behind is marginally
-    stable: a second slide of it starts between 1.6 and 4.3 s, decided by round-off-level
-    differences (rank count, solver set-up; docs/slope.md), sometimes before the first has
-    stopped, so the run is checked for deceleration and bounded speeds, not for rest."""
+    TLSPH-only slope (which stops within ~0.1 m), at t = 0.7 s already, and the debris
+    comes to rest on the floor. Before the wall contact of free-surface fluid particles a
+    particle was thrown out at ~1.3-1.5 s. Thin bands of fluidised particles in the soil
+    (fewer than 6 fluid neighbours) made the partitioned coupling unstable: their pressure
+    grew 1.3x per step and the kinetic energy rose by up to 18 times what gravity can
+    supply in a step (docs/coupling.md). The steep scarp left behind is marginally
+    stable: a second slide of it may start near the end, decided by round-off-level
+    differences (rank count, frame times; docs/slope.md), so the run is checked for rest
+    after the run-out, not at its end."""
     fronts = {}
     for name, end in (("slope_failure_solid", 0.7), ("slope_failure", 3.0)):
         scene = load_scene(name, [f"run.end_time={end}", "output.progress=false"])
@@ -502,9 +505,17 @@ def test_slope_failure_fluidises_and_runs_out_further(comm, mpi_tmp_path):
                 assert 2.0 < float(last["front"]) < 3.8  # ran out, and stayed on the floor
                 ke = np.array([float(r["kinetic_energy"]) for r in rows])
                 t = np.array([float(r["time"]) for r in rows])
-                assert ke[t >= 1.5].min() < 0.05 * ke.max()  # the run-out decelerated
+                assert ke[t >= 1.5].min() < 1e-3 * ke.max()  # the run-out came to rest
                 speed = np.array([float(r["max_speed"]) for r in rows])
                 assert speed.max() < 4.0  # no particle thrown out, at any time
+                # gravity raises the kinetic energy in a step by at most |g| sum m |v| dt
+                # <= |g| sqrt(2 M KE) dt (Cauchy-Schwarz); twice that at the peak leaves
+                # room for the elastic energy a phase change releases. No step exceeds it.
+                mass = sum(float(rows[0][k]) for k in ("n_solid", "n_fluid")) * 1655.0 * 0.05 ** 2
+                dt = np.array([float(r["dt"]) for r in rows])
+                bound = 2.0 * 9.81 * np.sqrt(2.0 * mass * ke.max()) * dt[1:]
+                rise = np.diff(ke)
+                assert (rise < bound).all(), f"kinetic energy rose by {rise.max():.1f} J in a step"
     if comm.rank == 0:
         assert fronts["slope_failure_solid"] < 0.2
         assert fronts["slope_failure"] > fronts["slope_failure_solid"] + 0.2
