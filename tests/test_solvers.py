@@ -540,7 +540,6 @@ def test_boomeramg_smoother_defaults_to_l1_gauss_seidel_unless_asked(comm, mpi_t
                 PETSc.Options().delValue(prefix + "pc_hypre_boomeramg_" + key)
 
 
-
 def test_block_system_grown_by_resize_solves_as_a_fresh_one(comm, mpi_tmp_path):
     """A block system grown by ``resize`` (fluidised particles joining the viscous
     predictor) solves bit for bit as a new system of that size, with the same BoomerAMG
@@ -555,6 +554,12 @@ def test_block_system_grown_by_resize_solves_as_a_fresh_one(comm, mpi_tmp_path):
     coupling = np.array([[2.0, -1.0], [0.5, 2.0]])
     options = dict(block_size=bs, ksp_type="gmres", rtol=1e-4,
                    hypre_options={"pc_hypre_boomeramg_agg_nl": "1"})
+
+    def settings(system):
+        return (_view_value(comm, system, mpi_tmp_path, "aggressive coarsening"),
+                _view_value(comm, system, mpi_tmp_path, "Threshold for strong coupling"),
+                _smoother(comm, system, mpi_tmp_path))
+
     PETSc.Options().setValue("grw_pc_hypre_boomeramg_strong_threshold", "0.4")
     try:
         with LinearSystem(comm, "grw_", block_rows(comm, 6 * 6), **options) as grown:
@@ -565,17 +570,13 @@ def test_block_system_grown_by_resize_solves_as_a_fresh_one(comm, mpi_tmp_path):
                 grown.assemble(*coupled_triplets(n, np.arange(first // bs, stop // bs), coupling))
                 rhs = rhs_of(bs * n * n)[first:stop].reshape(-1, bs)
                 x, info = grown.solve(rhs)
-            views = [(_view_value(comm, grown, mpi_tmp_path, "aggressive coarsening"),
-                      _view_value(comm, grown, mpi_tmp_path, "Threshold for strong coupling"),
-                      _smoother(comm, grown, mpi_tmp_path))]
+            views = [settings(grown)]
             with LinearSystem(comm, "grw_", block_rows(comm, 20 * 20), **options) as fresh:
+                assert fresh.owned_range == (first, stop)
                 fresh.assemble(*coupled_triplets(20, np.arange(first // bs, stop // bs),
                                                  coupling))
                 y, fresh_info = fresh.solve(rhs)
-                views.append((_view_value(comm, fresh, mpi_tmp_path, "aggressive coarsening"),
-                              _view_value(comm, fresh, mpi_tmp_path,
-                                          "Threshold for strong coupling"),
-                              _smoother(comm, fresh, mpi_tmp_path)))
+                views.append(settings(fresh))
     finally:
         PETSc.Options().delValue("grw_pc_hypre_boomeramg_strong_threshold")
     assert views[0] == views[1] == ("1", "0.4", "l1-Gauss-Seidel")
