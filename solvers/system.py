@@ -208,6 +208,7 @@ class LinearSystem:
         self._b = self._x = None
         self._create_vectors()
         self._mat = None
+        self._product = None  # an operator matrix + L^T R (set_product)
         self._nullspace = None
         self._pattern = None  # indptr, indices (+ keys, inverse, rows, cols from triplets) of the last assembly
         self._array_sets = ({}, {})  # arrays of the matrices built on arrays, see _array
@@ -267,6 +268,7 @@ class LinearSystem:
             for 32-bit indices).
         """
         if self._mat is not None:
+            self._drop_product()
             self._ksp.reset()
             self._mat.destroy()
             self._mat = None
@@ -456,6 +458,7 @@ class LinearSystem:
             self._mat.setValuesCSR(pattern["indptr"], pattern["indices"], data,
                                    addv=self._PETSc.InsertMode.INSERT_VALUES)
             self._mat.assemble()
+        self._drop_product()
         self._ksp.setOperators(self._mat)
 
     def assemble_csr(self, indptr, cols, values, same_unknowns: bool = False) -> None:
@@ -523,6 +526,7 @@ class LinearSystem:
             self._mat.setValuesCSR(last["indptr"], last["indices"], values,
                                    addv=self._PETSc.InsertMode.INSERT_VALUES)
             self._mat.assemble()
+        self._drop_product()
         self._ksp.setOperators(self._mat)
 
     def _build(self, rows, cols, keys, inverse, data) -> None:
@@ -619,6 +623,44 @@ class LinearSystem:
             self._pc_age = 0
         self._ksp.getPC().setReusePreconditioner(keep)
 
+    def set_product(self, ptr, cols, left, right, near) -> None:
+        """Collective: the operator of the next solve is the assembled matrix plus
+        ``left^T right`` minus ``near``; the preconditioner stays built on the matrix.
+
+        Parameters
+        ----------
+        ptr, cols : numpy.ndarray of int
+            CSR pattern of this rank's rows of ``left`` and ``right`` (any number of
+            rows, ``ptr[0] == 0``), columns global unknowns of this system.
+        left, right : numpy.ndarray of float64
+            The values of the two blocks on that pattern.
+        near : tuple of numpy.ndarray
+            ``(indptr, cols, values)``: a CSR block of this rank's rows of the system
+            (``n_local + 1`` row pointers, global columns sorted in each row), the part
+            of ``left^T right`` the caller already added to the assembled matrix (so the
+            operator is the matrix without it, plus the whole product).
+
+        Notes
+        -----
+        Call it after each :meth:`assemble_csr` whose operator should carry the product
+        (an assembly drops it). If no rank has a row of ``left``, the operator is the
+        matrix. See :mod:`solvers.product`.
+        """
+        from solvers.product import ProductOperator
+
+        n_rows = ptr.shape[0] - 1
+        self._drop_product()
+        if self.comm.allreduce(n_rows) == 0:
+            return
+        self._product = ProductOperator(self._PETSc, self.comm, self._mat, n_rows, ptr, cols,
+                                        left, right, near)
+        self._ksp.setOperators(self._product.mat, self._mat)
+
+    def _drop_product(self) -> None:
+        if getattr(self, "_product", None) is not None:
+            self._product.free()
+        self._product = None
+
     # -- solve ----------------------------------------------------------------------
 
     def solve(self, rhs, x0=None):
@@ -695,6 +737,12 @@ class LinearSystem:
                 self._ksp.solve(self._b, self._x)
                 self.fresh_setup = True
         reason = int(self._ksp.getConvergedReason())
+        if reason == int(self._PETSc.KSP.ConvergedReason.DIVERGED_DTOL) and x0 is not None:
+            # the initial guess was far off (the last step's pressure after a violent
+            # step: 6e10 Pa where 6e3 were wanted): solved again from zero
+            self._x.set(0.0)
+            self._ksp.solve(self._b, self._x)
+            reason = int(self._ksp.getConvergedReason())
         elapsed = time.perf_counter() - start
 
         iterations = int(self._ksp.getIterationNumber())
@@ -731,6 +779,7 @@ class LinearSystem:
     def destroy(self) -> None:
         """Collective: free the PETSc objects; safe to call more than once."""
         if not self._PETSc.Sys.isFinalized():
+            self._drop_product()
             for obj in (self._ksp, self._mat, self._nullspace, self._x, self._b):
                 if obj is not None:
                     obj.destroy()
