@@ -486,6 +486,6 @@ def coupled_halo(comm, x_owned, solid, fluid, radius: float) -> Halo:
             send.append(np.zeros(0, dtype=np.int64))
             continue
         near = np.all((x >= alo - radius) & (x <= ahi + radius), axis=1)
-        near |= fluid & np.all((x >= slo - radius) & (x <= shi + radius), axis=1)
+        near |= np.all((x >= slo - radius) & (x <= shi + radius), axis=1)
         send.append(np.flatnonzero(near))
     return Halo.from_send_lists(comm, send, None, n_owned=len(x))

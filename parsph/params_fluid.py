@@ -36,12 +36,6 @@ class FluidNumerics:
     free_surface_gamma: float = spec(0.25, doc="free surface also where h |sum_j V_j grad W_ij| > "
                                      "gamma (incomplete support; 0.56 on a flat surface, 0.03 one "
                                      "layer below)", gt=0.0)
-    free_surface_min_fluid: int = spec(6, doc="coupled scenes: a fluid particle with fewer "
-                                       "fluid neighbours than this, a solid neighbour and a full "
-                                       "support is a pocket in the soil (singular PPE rows, or a "
-                                       "band too thin for the partitioned coupling): its "
-                                       "pressure is the mean pressure of its solid neighbours "
-                                       "(held to it, by a wall; 0 = off)", ge=0)
     surface_wall_contact: bool = spec(True, doc="a free-surface particle (p = 0, which the "
                                       "PPE does not hold off a boundary) closer than d to wall "
                                       "or soil particles loses its velocity towards them, and "
@@ -83,11 +77,6 @@ class FluidNumerics:
                                           "~0.1)", gt=0.0, le=0.1)
     clamp_negative_pressure: bool = spec(True, doc="set negative PPE pressures to 0 before the "
                                          "corrector (Koshizuka & Oka 1996)")
-    clamp_wall_pressure: bool = spec(True, doc="also set negative wall (ghost) pressures to 0; "
-                                     "off: a wall particle above the water keeps the negative "
-                                     "extrapolated pressure that holds the corner particle of a "
-                                     "fluid at rest (hydrostatic), but a fluid leaving a wall is "
-                                     "pulled into it (dam break)")
     ppe_rtol: float = spec(1e-8, doc="relative tolerance of the pressure solve (ppe_ksp_rtol)",
                            gt=0.0, lt=1.0)
     visc_rtol: float = spec(1e-8, doc="relative tolerance of the viscous predictor solve "

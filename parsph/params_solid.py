@@ -28,6 +28,10 @@ class SolidNumerics:
                                    "correction matrix (relative to a full interior support)",
                                    gt=0.0, le=1.0)
     wall_friction: float = spec(0.0, doc="Coulomb friction coefficient solid/wall (-)", ge=0.0)
+    max_substeps: int = spec(1, doc="coupled scenes with fluid: up to this many TLSPH sub-steps "
+                             "per coupled step, which then takes the fluid's CFL step (eq. "
+                             "(49)) instead of the solid's; 1 = one step for both (docs/coupling.md)",
+                             ge=1, le=1000)
     ambient_pressure: float = spec(0.0, doc="uniform external pressure on every free surface "
                                    "(Pa), e.g. the cell pressure of a triaxial test", ge=0.0)
     triaxial_csv: bool = spec(False, doc="specimen averages of a triaxial test (axial strain, "

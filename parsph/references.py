@@ -52,7 +52,8 @@ def kinematic_positions(scene, run_dir) -> float:
 
 
 #: Stage -> module that registers the references of the scenes running that stage.
-PROVIDERS = {"iisph": "parsph.fluid.references", "tlsph": "parsph.solid.references"}
+PROVIDERS = {"iisph": "parsph.fluid.references", "tlsph": "parsph.solid.references",
+             "coupled": "parsph.coupling.references"}
 
 
 def reference_of(scene):

@@ -298,27 +298,57 @@ def _time_step(ctx, stages, next_frame: float, end: float) -> float:
     return dt
 
 
+def kinetic_energy(ctx) -> tuple[float, float]:
+    """Collective: ``(kinetic energy, mass)`` of the moving (non-wall) particles (J, kg;
+    per metre in 2D)."""
+    p, n = ctx.particles, ctx.particles.n_owned
+    moving = p["phase"][:n] != PHASE_WALL
+    v = p["v"][:n][moving]
+    m = p["m"][:n][moving]
+    ke, mass = global_sum(ctx.comm, np.array([0.5 * float((m * (v * v).sum(axis=1)).sum()),
+                                              float(m.sum())]))
+    return float(ke), float(mass)
+
+
+def energy_budget(ke0, ke1, ee0, ee1, mass, g, dt, work=0.0) -> tuple[float, float]:
+    r"""``(bound, ratio)`` of one step: what gravity, the stored elastic energy and the
+    density term of the PPE can supply to the kinetic energy over ``dt``,
+    :math:`|g|\sqrt{2 M \max(K_0, K_1)}\,\Delta t + \max(0, E_0 - E_1) + W_\alpha` (J; the
+    first term bounds :math:`\int \sum m\,\mathbf g\cdot\mathbf v\,dt` by
+    Cauchy-Schwarz; :math:`W_\alpha` = ``work``, the work of the pressure on the expansion
+    the density term of eq. (32) asks of compressed particles), and the kinetic energy's
+    rise over it, :math:`(K_1 - K_0) / \text{bound}`: a step that makes energy has a ratio
+    above 1 (docs/reliability.md)."""
+    bound = g * math.sqrt(2.0 * mass * max(ke0, ke1, 0.0)) * dt + max(ee0 - ee1, 0.0) \
+        + max(work, 0.0)
+    rise = ke1 - ke0
+    if bound <= 0.0:
+        return 0.0, (0.0 if rise <= 0.0 else math.inf)
+    return bound, rise / bound
+
+
 def _stats_row(ctx, dt, stage_objs) -> dict:
     p, comm = ctx.particles, ctx.comm
     n = p.n_owned
     phase = p["phase"][:n]
     counts = np.array([n, (phase == PHASE_SOLID).sum(), (phase == PHASE_FLUID).sum(),
-                       (phase == PHASE_WALL).sum()], dtype=np.float64)
+                       (phase == PHASE_WALL).sum(), 0.0, 0.0], dtype=np.float64)
     v = p["v"][:n]
     moving = phase != PHASE_WALL
     speed2 = (v * v).sum(axis=1)[moving]
-    ke = 0.5 * float((p["m"][:n][moving] * speed2).sum())
+    counts[4] = 0.5 * float((p["m"][:n][moving] * speed2).sum())
+    counts[5] = float(p["m"][:n][moving].sum())
     e = np.asarray(ctx.scene.output.front_direction or (1.0,) + (0.0,) * (ctx.dim - 1), float)
     along = p["x"][:n][moving] @ (e / np.linalg.norm(e))
     counts = global_sum(comm, counts)
-    ke = global_sum(comm, ke)
+    ke = float(counts[4])
     n_max, n_min = global_max(comm, n), global_min(comm, n)
     front = global_max(comm, float(along.max()) if len(along) else -math.inf)
     vmax = math.sqrt(global_max(comm, float(speed2.max()) if len(speed2) else 0.0))
     row = {"step": ctx.step, "time": ctx.time, "dt": dt,
            "n_particles": int(counts[0]), "n_solid": int(counts[1]), "n_fluid": int(counts[2]),
            "n_wall": int(counts[3]), "n_owned_min": n_min, "n_owned_max": n_max,
-           "kinetic_energy": ke, "max_speed": vmax, "front": front}
+           "kinetic_energy": ke, "max_speed": vmax, "front": front, "mass": float(counts[5])}
     for s in stage_objs:
         row.update(s.stats())
     for name, seconds in ctx.timers.items():
@@ -329,7 +359,8 @@ def _stats_row(ctx, dt, stage_objs) -> dict:
 def stats_columns(stages) -> list[str]:
     """stats.csv columns: counts, energy, each stage's own columns, wall seconds per stage."""
     cols = ["step", "time", "dt", "n_particles", "n_solid", "n_fluid", "n_wall",
-            "n_owned_min", "n_owned_max", "kinetic_energy", "max_speed", "front"]
+            "n_owned_min", "n_owned_max", "kinetic_energy", "energy_bound", "energy_ratio",
+            "max_speed", "front"]
     cols += [c for s in stages for c in getattr(s, "stats_columns", ())]
     cols += [f"wall_s_{name}" for name, _ in INFRASTRUCTURE]
     cols += [f"wall_s_{s.name}" for s in stages] + ["wall_s_output"]
@@ -480,7 +511,8 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
     def write_checkpoint():
         meta = {"scene": scene.name, "scene_physics": checkpoint.physics_hash(scene),
                 "dim": dim, "time": ctx.time, "step": ctx.step, "frame_index": frame_index,
-                "last_frame_step": last_frame_step, "next_checkpoint": next_ck}
+                "last_frame_step": last_frame_step, "next_checkpoint": next_ck,
+                "elastic_energy": last["ee"]}
         states = {s.name: s.state() for s in stages if hasattr(s, "state")}
         checkpoint.write(ck_path, comm, particles, ctx.rcb, meta, states,
                          fault=faults.checkpoint_fault(ctx.step), rcb_ref=ctx.rcb_ref)
@@ -495,6 +527,10 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
                         enabled=comm.rank == 0, mode=mode) as stats, _StopRequest() as stop:
         if ck is None:
             write_frame()
+        # the energy budget of each step (stats.csv energy_bound, energy_ratio) needs the
+        # kinetic and elastic energy before it: of the initial state, or the checkpoint's
+        last = {"ke": kinetic_energy(ctx)[0],
+                "ee": float(ck.meta.get("elastic_energy", 0.0)) if ck is not None else 0.0}
         max_steps = scene.run.max_steps
         while scene.run.mode != "geometry" and ctx.time < end - 1e-12 * end:
             if max_steps and ctx.step >= max_steps:
@@ -525,7 +561,15 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
                 write_frame()
                 last_frame_step = ctx.step
                 frame_index += 1
-            stats.write(_stats_row(ctx, dt, stages))
+            row = _stats_row(ctx, dt, stages)
+            g = max(float(np.linalg.norm(ctx.body_acceleration(t)))
+                    for t in (ctx.time - dt, ctx.time))
+            ee = float(row.get("elastic_energy") or 0.0)
+            row["energy_bound"], row["energy_ratio"] = energy_budget(
+                last["ke"], row["kinetic_energy"], last["ee"], ee, row.pop("mass"), g, dt,
+                float(row.get("density_work") or 0.0))
+            last.update(ke=row["kinetic_energy"], ee=ee)
+            stats.write(row)
             bar.update(ctx.time, ctx.step)
             if ck_every > 0 and ctx.time >= next_ck - 1e-9 * ck_every:
                 while next_ck <= ctx.time + 1e-9 * ck_every:

@@ -1,8 +1,10 @@
 """Test set-up valid at any rank count.
 
 Under ``mpirun -n 2 python -m mpi4py -m pytest`` every rank runs every test; a test
-marked ``mpi`` is skipped on one rank. ``mpi_tmp_path`` is one directory shared by all
-ranks. Each test ends with a barrier so that ranks stay in step.
+marked ``mpi`` is skipped on one rank. A test marked ``slow`` (minutes: the finest
+resolutions of a convergence study) runs only with ``--slow`` or ``PARSPH_SLOW=1``, so
+that CI stays within its time. ``mpi_tmp_path`` is one directory shared by all ranks.
+Each test ends with a barrier so that ranks stay in step.
 """
 import os
 import shutil
@@ -23,13 +25,22 @@ def comm():
     return world()
 
 
+def pytest_addoption(parser):
+    parser.addoption("--slow", action="store_true", default=False,
+                     help="also run the tests marked slow (minutes each)")
+
+
 def pytest_collection_modifyitems(config, items):
     from decomposition import world
 
     size = world().size
     skip_mpi = pytest.mark.skip(reason="needs 2 or more ranks (run under mpirun -n 2)")
     skip_serial = pytest.mark.skip(reason="spawns its own processes; runs in the one-rank session")
+    slow = config.getoption("--slow") or os.environ.get("PARSPH_SLOW") == "1"
+    skip_slow = pytest.mark.skip(reason="slow (minutes): run with --slow or PARSPH_SLOW=1")
     for item in items:
+        if "slow" in item.keywords and not slow:
+            item.add_marker(skip_slow)
         if "mpi" in item.keywords and size < 2:
             item.add_marker(skip_mpi)
         if "serial_only" in item.keywords and size > 1:

@@ -42,22 +42,24 @@ def _small_set():
     return d, h, x, m, fluid, free, rho, rho0, indptr, indices, row
 
 
-def test_ppe_matrix_is_eq35_with_wall_extrapolation():
+def test_ppe_matrix_is_eq35_with_no_penetration_rows():
+    """Fluid rows: -s_i x eq. (35), a pair with the wall at half the fluid pair's
+    coefficient (only the fluid end responds), source (32); free surface p = 0; the wall
+    row in contact is the no-penetration of its fluid neighbours (docs/iisph.md)."""
     d, h, x, m, fluid, free, rho, rho0, indptr, indices, row = _small_set()
     dt, alpha = 1e-3, 0.01
     vs = np.zeros((4, 2))
-    vs[0] = [0.01, 0.0]  # v* of particle 0 only: divergence source of row 1
-    g = np.array([0.0, -9.81])
+    vs[0] = [0.01, 0.0]  # v* of particle 0 only: divergence source of rows 1 and 3
     A, rhs = dense_system(assembly.ppe_csr, x, vs, m, rho, rho0, fluid, free, row, indptr,
-                          indices, h, 2, dt, alpha, d, g, np.zeros((4, 2)), np.zeros(4), False,
-                          False, n_points=4)
+                          indices, h, 2, dt, alpha, d, False, False, n_points=4)
     for i in (0, 1):  # fluid rows: -s_i * eq. (35), s_i = rho_i d^2 / (2 rho0_i)
         s = assembly.ppe_row_scale(rho[i], rho0[i], d)
         for j in range(4):
             if j == i:
                 continue
             r = np.linalg.norm(x[i] - x[j])
-            coef = 2.0 / rho[i] * m[j] * fac_grad(r, h, 2)  # eq. (35): coefficient of -p_j
+            factor = 2.0 if fluid[j] else 1.0
+            coef = factor / rho[i] * m[j] * fac_grad(r, h, 2)  # eq. (35): coefficient of -p_j
             assert A[i, j] == pytest.approx(s * coef, rel=1e-12)
         assert A[i, i] == pytest.approx(-A[i][np.arange(4) != i].sum(), rel=1e-12)
     # source of eq. (32): divergence (36) and the compression-only alpha term
@@ -67,12 +69,16 @@ def test_ppe_matrix_is_eq35_with_wall_extrapolation():
         source = rho0[i] * div / rho[i] / dt + alpha * min(rho0[i] - rho[i], 0.0) / dt ** 2
         assert rhs[i] == pytest.approx(-assembly.ppe_row_scale(rho[i], rho0[i], d) * source)
     assert np.array_equal(A[2], [0, 0, 1, 0]) and rhs[2] == 0.0  # free surface: p = 0
-    # wall row: p_w - sum_f W_wf p_f / sum W = sum_f W_wf rho_f g.(x_w - x_f) / sum W
-    wts = np.array([w(np.linalg.norm(x[3] - x[f]), h, 2) for f in range(3)])
-    assert A[3, :3] == pytest.approx(-wts / wts.sum())
-    assert A[3, 3] == 1.0
-    expect = sum(wts[f] * rho[f] * np.dot(g, x[3] - x[f]) for f in range(3)) / wts.sum()
-    assert rhs[3] == pytest.approx(expect)
+    # wall row: -(d^2/2)(1/rho_w) sum_f m_f F_wf (p_w - p_f) = -(d^2/2) rho0/(rho dt) div_w
+    s = 0.5 * d * d
+    for f in range(3):
+        coef = s / rho[3] * m[f] * fac_grad(np.linalg.norm(x[3] - x[f]), h, 2)
+        assert A[3, f] == pytest.approx(coef, rel=1e-12)
+    assert A[3, 3] == pytest.approx(-A[3, :3].sum(), rel=1e-12)
+    div = sum(m[f] * np.dot(vs[f] - vs[3], x[3] - x[f])
+              * fac_grad(np.linalg.norm(x[3] - x[f]), h, 2) for f in range(3))
+    assert rhs[3] == pytest.approx(-s * rho0[3] / (rho[3] * dt) * div)
+    assert rhs[3] != 0.0
 
 
 @pytest.mark.parametrize("morris", [False, True], ids=["eq34", "morris"])
@@ -136,7 +142,7 @@ def test_csr_kernels_write_the_rows_in_the_stage_numbering():
     dt = 1e-3
     vs = np.array([[0.0, 0.0], [0.01, 0.0], [0.0, -0.02], [0.03, 0.0]])
     args = (x, vs, m, rho, rho0, fluid, free)
-    tail = (h, 2, dt, 0.01, d, g, np.zeros((4, 2)), np.zeros(4), False, False)
+    tail = (h, 2, dt, 0.01, d, False, False)
     A0, b0 = dense_system(assembly.ppe_csr, *args, ident, indptr, indices, *tail, n_points=4)
     sorted_indices = sort_neighbours_by_row(indptr, indices, renumbered)
     A1, b1 = dense_system(assembly.ppe_csr, *args, renumbered, indptr, sorted_indices, *tail,
@@ -144,7 +150,7 @@ def test_csr_kernels_write_the_rows_in_the_stage_numbering():
     # the same sums in another neighbour order: equal to round-off
     assert np.allclose(A1[np.ix_(renumbered, renumbered)], A0, rtol=1e-12, atol=0)
     assert np.allclose(b1, b0, rtol=1e-12, atol=0)
-    assert A1[3, 3] == 1.0 and A1[3, :3].sum() == pytest.approx(-1.0)  # the wall, last
+    assert A1[3, 3] > 0.0 and A1[3, :3].sum() == pytest.approx(-A1[3, 3])  # the wall, last
     nu = np.array([0.0, 0.1, 0.3, 0.2])
     slip = np.zeros(4, dtype=np.uint8)
     vargs = (x, vs, m, rho, nu, fluid, np.zeros(4), slip)

@@ -26,20 +26,30 @@ class SolidContext(Context):
     """The context TLSPH sees in a coupled scene; walls are looked up in ``main``."""
 
     main: Context = None
+    _walls: tuple = None  # (main step, names, rows): the walls of the last lookup
 
     def nearby_walls(self, names, around=None) -> dict:
-        """Collective: wall rows of the main set near this rank's solids (current x)."""
+        """Collective: wall rows of the main set near this rank's solids (current x).
+
+        The walls are fixed and a solid moves less than d in a coupled step (its speed
+        bounds the step, ``fluid.cfl <= 1``): the lookup, d wider, serves every solid
+        sub-step of one coupled step (``main.step``)."""
+        step = self.main.step
+        if self._walls is not None and self._walls[0] == step and self._walls[1] == tuple(names):
+            return self._walls[2]
         m = self.main.particles
         n = m.n_owned
         x = self.particles["x"][: self.n_owned]
         pts = x if around is None else x[around]
         if len(pts):
-            lo, hi = pts.min(axis=0), pts.max(axis=0)
+            lo, hi = pts.min(axis=0) - self.d, pts.max(axis=0) + self.d
         else:
             lo, hi = np.full(self.dim, np.inf), np.full(self.dim, -np.inf)
         halo = proximity_halo(self.comm, m["x"][:n], m["phase"][:n] == PHASE_WALL,
                               self.radius, lo, hi)
-        return halo.exchange(m.owned_fields(names), shift_fields=())
+        rows = halo.exchange(m.owned_fields(names), shift_fields=())
+        self._walls = (step, tuple(names), rows)
+        return rows
 
 
 class SolidView:

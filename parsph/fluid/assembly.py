@@ -34,15 +34,17 @@ coefficients are of order one (:func:`ppe_row_scale`):
     = \frac{\rho_0}{\Delta t} \langle \nabla\cdot\mathbf{v}^* \rangle_i
       + \alpha \frac{\rho_0 - \rho_i}{\Delta t^2},
 
-free-surface rows :math:`p_i = 0`, and boundary rows with fluid neighbours the pressure
-extrapolation of Adami et al. (2012), eq. (27),
+free-surface rows :math:`p_i = 0`, and wall rows with fluid neighbours the pressure
+extrapolation of Adami et al. (2012), eq. (27), for fixed walls,
 
 .. math::
 
     p_w - \sum_f \frac{W_{wf}}{\sum_f W_{wf}} p_f
-    = \sum_f \frac{W_{wf}}{\sum_f W_{wf}} \rho_f (\mathbf{g} - \mathbf{a}_w)\cdot(\mathbf{x}_w - \mathbf{x}_f).
+    = \sum_f \frac{W_{wf}}{\sum_f W_{wf}} \rho_f \mathbf{g}\cdot(\mathbf{x}_w - \mathbf{x}_f).
 
-Boundary rows without a fluid neighbour are identity rows (value 0).
+Wall rows without a fluid neighbour are identity rows (value 0). The rows of type-II
+solid particles of a coupled scene (no penetration, the solid's inertia in the matrix)
+are described in :mod:`parsph.coupling.pressure`.
 """
 from __future__ import annotations
 
@@ -55,10 +57,16 @@ from parsph.kernel import fac_grad, normalisation, w
 
 __all__ = ["density_and_surface", "viscous_csr", "viscous_explicit", "ghost_velocity", "ppe_csr",
            "divergence", "pressure_gradient", "pressure_gradient_corrected", "ppe_row_scale",
-           "coupling_pressure_acceleration", "has_fluid_neighbour", "rows_in_order"]
+           "has_fluid_neighbour", "rows_in_order"]
 
 #: eta^2 / h^2 of the viscous term (avoids 1/r^2 blowing up for coincident particles).
 ETA2 = 0.01
+
+#: A boundary particle (wall or solid) comes into contact with the fluid when the
+#: summation density of its support, fluid and boundary particles together, reaches this
+#: times its rest density (a fluid layer resting a spacing d away fills it), and stays in
+#: contact down to the free surface's beta (see density_and_surface).
+CONTACT = 0.97
 
 
 def ppe_row_scale(rho, rho0, d):
@@ -72,59 +80,59 @@ def ppe_row_scale(rho, rho0, d):
 
 
 @njit(cache=True)
-def density_and_surface(x, m, fluid, rho0, indptr, indices, h, dim, beta, gamma, rho, free,
-                        min_fluid, solid, p, pin):
-    r"""Summation density (33) of the owned fluid rows and the free-surface flag.
+def density_and_surface(x, m, fluid, rho0, indptr, indices, h, dim, beta, gamma, rho, free):
+    r"""Summation density (33) of the owned fluid rows, the free-surface flag, and which
+    boundary rows the fluid touches.
 
-    ``rho[i]`` of boundary rows is left as given (their rest density). A fluid row is on
-    the free surface (``free[i] = 1``) when its support is visibly incomplete:
-    :math:`\rho_i < \beta \rho_{0i}` (Koshizuka & Oka 1996) **or**
+    A fluid row is on the free surface (``free[i] = 1``: p = 0) when its support is
+    visibly incomplete: :math:`\rho_i < \beta \rho_{0i}` (Koshizuka & Oka 1996) **or**
     (:math:`\rho_i < \rho_{0i}` and :math:`h |\sum_j V_j \nabla W_{ij}| > \gamma`) (the
-    kernel-gradient sum, zero for a full support; Marrone et al. 2010 use its normalised form for surface
-    detection; a compressed particle is never free, or two surface particles could
-    collapse onto each other at p = 0), with
-    :math:`V_j = m_j / \rho_{0j}`. Boundary particles count in both sums (they fill
-    the support beyond a wall), so a particle by a wall is not flagged, while one at a
-    wall corner above the water is, through the second test, even if the wall particles
-    above the water raise its density.
+    kernel-gradient sum, zero for a full support; Marrone et al. 2010 use its normalised
+    form for surface detection; a compressed particle is never free, or two surface
+    particles could collapse onto each other at p = 0), with :math:`V_j = m_j /
+    \rho_{0j}`. Boundary particles count in both sums (they fill the support beyond a
+    wall), so a particle by a wall is not flagged, while one at a wall corner above the
+    water is, through the second test, even if the wall particles above the water raise
+    its density.
 
-    A fluid row with a full support (the gradient test above passes), fewer than
-    ``min_fluid`` fluid neighbours, at least one solid neighbour (``solid[j] > 0``) and no
-    wall neighbour is a pocket enclosed by solid rows
-    that extrapolate their pressure from it (Adami et al. 2012): its PPE row would not
-    depend on its pressure (singular). It gets a Dirichlet row instead, ``p_i = pin[i]``
-    = the mean pressure ``p`` of its solid neighbours (the soil's, clamped at 0): a
-    particle that fluidised inside the soil carries the soil's mean stress. Next to a
-    wall the PPE row is kept (it is what holds the particle off the wall) and held to
-    the soil's pressure by its own diagonal: ``pin[i] = -(p_soil + 1)`` marks it for
-    :func:`ppe_csr`, which adds ``diag (p_i - p_soil)``. ``pin`` is 0 elsewhere.
+    ``rho[i]`` of boundary rows is left as given (their rest density). A boundary row
+    (wall or solid) is *free* too (p = 0, its no-penetration row inactive) unless the
+    fluid is in contact with it: its support, fluid and boundary particles together, is
+    full, :math:`\sum_j m_j W_{ij} \ge` :data:`CONTACT` :math:`\rho_{0i}` to come into
+    contact, :math:`\ge \beta \rho_{0i}` to stay (``free`` holds the last step's flag on
+    entry). As an equality on every boundary particle with a fluid neighbour, no
+    penetration stopped a fluid particle wherever it entered a support (2h away): a
+    Bingham front hovered a quarter spacing above the floor and ran out 0.5 m further
+    with 0.9 both ways; with 0.97 both ways the side walls of a tank at rest flickered in
+    and out of contact and its water rocked at 6 % of sqrt(g H) after 16 s
+    (docs/iisph.md).
     """
     n = indptr.shape[0] - 1
     w0 = normalisation(h, dim)
     gs = np.zeros(dim)
     for i in range(n):
         if not fluid[i]:
-            free[i] = 0
+            acc = m[i] * w0
+            touched = False
+            for q in range(indptr[i], indptr[i + 1]):
+                j = indices[q]
+                r2 = 0.0
+                for a in range(dim):
+                    e = x[i, a] - x[j, a]
+                    r2 += e * e
+                touched = touched or fluid[j]
+                acc += m[j] * w(math.sqrt(r2), h, dim)
+            level = beta if free[i] == 0 else CONTACT
+            free[i] = 0 if touched and acc >= level * rho0[i] else 1
             continue
         acc = m[i] * w0
         gs[:] = 0.0
-        nf = 0
-        ns = 0
-        nw = 0
-        ps = 0.0
-        pin[i] = 0.0
         for q in range(indptr[i], indptr[i + 1]):
             j = indices[q]
-            nf += fluid[j]
-            if solid[j] > 0.0:
-                ns += 1
-                ps += p[j]
-            elif not fluid[j]:
-                nw += 1
             r2 = 0.0
             for a in range(dim):
-                d = x[i, a] - x[j, a]
-                r2 += d * d
+                e = x[i, a] - x[j, a]
+                r2 += e * e
             r = math.sqrt(r2)
             acc += m[j] * w(r, h, dim)
             f = m[j] / rho0[j] * fac_grad(r, h, dim)
@@ -136,13 +144,6 @@ def density_and_surface(x, m, fluid, rho0, indptr, indices, h, dim, beta, gamma,
             g2 += gs[a] * gs[a]
         free[i] = 1 if (acc < beta * rho0[i] or
                         (acc < rho0[i] and h * math.sqrt(g2) > gamma)) else 0
-        if nf < min_fluid and ns > 0 and h * math.sqrt(g2) <= gamma:
-            # a pocket inside the soil (full support, few fluid neighbours): its pressure
-            if nw == 0:
-                free[i] = 1
-                pin[i] = max(ps / ns, 0.0)
-            elif not free[i]:  # by a wall: keep the row (it holds the particle off the
-                pin[i] = -max(ps / ns, 0.0) - 1.0  # wall), held to the soil's pressure
 
 
 @njit(cache=True, inline="always")
@@ -413,27 +414,45 @@ def viscous_explicit(x, v, v_ghost, m, rho, nu, fluid, slip, indptr, indices, h,
 
 
 @njit(cache=True)
-def ppe_csr(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt, alpha,
-            d, ga, acc_w, pin, corrected, expansion, first, out_ptr, out_cols, out_vals):
-    r"""CSR block and right-hand side of the stabilised PPE (32) with (35), (36) and walls.
+def ppe_csr(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt, alpha, d,
+            corrected, expansion, first, out_ptr, out_cols, out_vals):
+    r"""CSR block and right-hand side of the stabilised PPE (32) with (35), (36) and the
+    no-penetration rows of the boundary (walls, type-II solids).
 
     Writes the owned rows straight into ``out_ptr`` (``n_local + 1``), ``out_cols`` and
     ``out_vals`` (capacity ``pairs + n_owned``), columns sorted and distinct in each row
     (neighbour lists sorted by ``row``); ``first`` is the first global row of this rank.
-    Returns ``(nnz, rhs)``, ``rhs`` of shape (n_owned,).
+    Returns ``(nnz, rhs)``, ``rhs`` of shape (n_owned,). Rows with ``row[i] < 0`` are not
+    in the system.
 
-    ``vs`` is the predicted velocity v* of all rows (boundary rows: their own velocity
-    plus ``dt g``, see ``docs/iisph.md``; type-II solid rows: their predictor
-    velocity); ``ga`` is ``g`` (m/s^2) and ``acc_w[i]`` the acceleration of boundary row
-    ``i`` (zero for the fixed walls, the solid's predicted acceleration for a type-II
-    solid row, eq. (43)), so that the extrapolation uses ``g - a_w``. Rows with
-    ``row[i] < 0`` are not in the system.
+    ``vs`` is the predicted velocity v* of all rows: the fluid's after the viscous
+    predictor, a wall's its own (zero), a type-II solid's its predictor (eq. (7)).
+
+    - Interior fluid row: -s_i x eq. (35) = -s_i x the source of eq. (32), with
+      :math:`s_i` of :func:`ppe_row_scale`. A pair with a boundary neighbour carries half
+      the fluid pair's coefficient: only the fluid end of the pair responds to the
+      pressure through the fluid's inertia (a wall does not move; a solid's response is
+      the solid-response term of :mod:`parsph.coupling.pressure`).
+    - Free-surface row: p = 0.
+    - Boundary row with fluid neighbours: no penetration,
+      :math:`\langle\nabla\cdot\mathbf v^{\beta+1}\rangle_b = 0` over its fluid
+      neighbours, the fluid's response taken along each pair
+      (:math:`\nabla p_f\cdot(\mathbf x_b - \mathbf x_f) \approx p_b - p_f`, exact for a
+      linear pressure): :math:`-\frac{d^2}{2}\frac{1}{\rho_b}\sum_f m_f F_{bf}(p_b - p_f)
+      = -\frac{d^2}{2}\frac{\rho_{0b}}{\rho_b\Delta t}\sum_f m_f (\mathbf v^*_f -
+      \mathbf v^*_b)\cdot\nabla W_{bf}`. Its pressure is the multiplier of that
+      constraint; gravity enters through the fluid's v* (docs/iisph.md).
+    - Boundary row not in contact with the fluid (``free``, see
+      :func:`density_and_surface`): p = 0.
+
     With ``corrected`` the Laplacian (35) of a fluid row gets the first-order correction
     :math:`- 2\,\mathbf{e}_i\cdot\mathbf{L}_i \sum_j V_j (p_j - p_i) \nabla W_{ij}`,
     :math:`\mathbf{e}_i = \sum_j (m_j/\rho_i) \nabla W_{ij}` (zero for a full support),
     :math:`\mathbf{L}_i` as in :func:`pressure_gradient_corrected`: a linear pressure
     is then harmonic even where the support is truncated (the layers under the free
-    surface; cf. Schwaiger 2008, Fatehi & Manzari 2011), which (35) alone is not.
+    surface; cf. Schwaiger 2008, Fatehi & Manzari 2011), which (35) alone is not; each
+    corrected pair coefficient is kept >= 0, and a row whose diagonal the correction
+    would halve keeps eq. (35) as printed.
     """
     n = indptr.shape[0] - 1
     rhs = np.zeros(n)
@@ -451,20 +470,19 @@ def ppe_csr(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt, 
         dslot = -1
         diag = 1.0
         interior = fluid[i] and not free[i]
-        wsum = 0.0 if fluid[i] else fluid_weight_sum(x, fluid, indptr, indices, i, h, dim)
+        boundary = not fluid[i] and not free[i]  # in contact with the fluid
         s = 0.0
         div = 0.0
+        plain = 0.0
         use_corr = False
-        if interior:
+        if interior or boundary:
             s = rho[i] * d * d / (2.0 * rho0[i])
             diag = 0.0
-            if corrected:
+            if corrected and interior:
                 use_corr = _truncation_vector(x, m, rho, indptr, indices, i, h, dim, ev, L)
-        if interior or wsum > 0.0:
-            acc = 0.0
             for p in range(indptr[i], indptr[i + 1]):
                 j = indices[p]
-                if not interior and not fluid[j]:
+                if boundary and not fluid[j]:
                     continue
                 rj = row[j]
                 if dslot < 0 and rj >= ri:
@@ -472,30 +490,35 @@ def ppe_csr(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt, 
                 slot, t, last = _slot(out_cols, out_vals, base, 0, 1, 1, t, last, rj)
                 r2 = 0.0
                 dvr = 0.0
-                gr = 0.0
                 for a in range(dim):
                     e = x[i, a] - x[j, a]
                     r2 += e * e
                     dvr += (vs[j, a] - vs[i, a]) * e
-                    gr += (ga[a] - acc_w[i, a]) * e
-                if not interior:  # wall row: Adami et al. (2012), eq. (27)
-                    wij = w(math.sqrt(r2), h, dim) / wsum
-                    out_vals[base + slot] -= wij
-                    acc += wij * rho[j] * gr
-                    continue
                 f = fac_grad(math.sqrt(r2), h, dim)
                 div += m[j] * dvr * f
-                c = -s * 2.0 / rho[i] * m[j] * f  # >= 0
-                if use_corr:  # + 2 s e_i . L_i V_j grad W_ij (p_j - p_i)
-                    eb = 0.0
-                    for a in range(dim):
-                        la = 0.0
-                        for b in range(dim):
-                            la += L[a, b] * (x[i, b] - x[j, b])
-                        eb += ev[a] * la
-                    c -= 2.0 * s * m[j] / rho[j] * f * eb
+                # >= 0: the pair's response; 1 where one end is a boundary (see above)
+                c = -s * (2.0 if fluid[i] and fluid[j] else 1.0) / rho[i] * m[j] * f
+                plain += c
+                if use_corr:
+                    c = _corrected(c, x, m, rho, i, j, f, s, ev, L, dim)
                 diag += c
                 out_vals[base + slot] -= c
+            if use_corr and diag < 0.5 * plain:
+                # a row whose support is truncated yet not flagged free (a compressed
+                # surface particle, a droplet) loses its diagonal to the correction: its
+                # pressure reached MPa and GMRES broke down (elastic_gate, docs/iisph.md);
+                # it keeps eq. (35) as printed
+                diag = plain
+                for p in range(indptr[i], indptr[i + 1]):
+                    j = indices[p]
+                    r2 = 0.0
+                    for a in range(dim):
+                        e = x[i, a] - x[j, a]
+                        r2 += e * e
+                    f = fac_grad(math.sqrt(r2), h, dim)
+                    c = -s * (2.0 if fluid[j] else 1.0) / rho[i] * m[j] * f
+                    u = _column_slot(out_cols, base, t, row[j])
+                    out_vals[base + u] += _corrected(c, x, m, rho, i, j, f, s, ev, L, dim) - c
             if interior:
                 div /= rho[i]
                 # density-error term of eq. (32) for compression only: under-density near
@@ -504,19 +527,40 @@ def ppe_csr(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt, 
                 source = rho0[i] * div / dt + alpha * drho / (dt * dt)
                 # eq. (35) as sum a_ij (p_i - p_j) with a_ij = -(2/rho_i) m_j F_ij = -source
                 rhs[i] = -s * source
-                if pin[i] < 0.0:  # a pocket by a wall: + diag (p_i - p_soil), not singular
-                    rhs[i] += diag * (-pin[i] - 1.0)
-                    diag *= 2.0
-            else:
-                rhs[i] = acc
-        elif fluid[i]:  # free surface: p = 0; an enclosed pocket: p = pin
-            rhs[i] = pin[i]
+            else:  # no penetration: no density term (a boundary's own volume)
+                rhs[i] = -s * rho0[i] * div / (rho[i] * dt)
         if dslot < 0:
             dslot, t, last = _slot(out_cols, out_vals, base, 0, 1, 1, t, last, ri)
         out_vals[base + dslot] += diag
         k = base + t
         out_ptr[ri - first + 1] = k
     return k, rhs
+
+
+@njit(cache=True, inline="always")
+def _corrected(c, x, m, rho, i, j, f, s, ev, L, dim):
+    """The pair coefficient ``c`` of a fluid row with the first-order correction of the
+    ``corrected`` Laplacian, + 2 s e_i . L_i V_j grad W_ij, kept >= 0 (an M-matrix row)."""
+    eb = 0.0
+    for a in range(dim):
+        la = 0.0
+        for b in range(dim):
+            la += L[a, b] * (x[i, b] - x[j, b])
+        eb += ev[a] * la
+    return max(c - 2.0 * s * m[j] / rho[j] * f * eb, 0.0)
+
+
+@njit(cache=True, inline="always")
+def _column_slot(cols, base, t, col):
+    """Slot of column ``col`` among the sorted ``cols[base:base + t]``."""
+    lo, hi = 0, t - 1
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if cols[base + mid] < col:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
 
 
 @njit(cache=True)
@@ -629,44 +673,6 @@ def pressure_gradient(x, p, m, rho, fluid, indptr, indices, h, dim):
 
 
 @njit(cache=True)
-def coupling_pressure_acceleration(x, p, m, rho, rho0, fluid, solid, indptr, indices, h, dim):
-    r"""Pressure part of the fluid-to-solid force, eq. (45), per unit mass (m/s^2).
-
-    For an owned row with ``solid[i] > 0`` (type II; the value is the ratio of the mass
-    the fluid sees, ``m[i]``, to the true mass), the exact reaction of what its fluid
-    neighbours feel from it through the symmetric gradient (37) and the corrector (31)
-    (:math:`\mathbf{a}_f = -\langle\nabla p\rangle_f / \rho_{0f}`):
-
-    .. math::
-
-        \mathbf{a}_i = -s_i \sum_{f \in \text{fluid}} m_f \frac{\rho_f}{\rho_{0f}}
-        \left(\frac{p_i}{\rho_i^2} + \frac{p_f}{\rho_f^2}\right) \nabla W_{if},
-
-    so that :math:`m_i \mathbf{a}_i = -\sum_f m_f \mathbf{a}_{f \leftarrow i}`: the
-    pressure forces between the phases conserve momentum. Zero for other rows.
-    """
-    n = indptr.shape[0] - 1
-    out = np.zeros((n, dim))
-    for i in range(n):
-        if solid[i] <= 0.0:
-            continue
-        pi = p[i] / (rho[i] * rho[i])
-        for q in range(indptr[i], indptr[i + 1]):
-            j = indices[q]
-            if not fluid[j]:
-                continue
-            r2 = 0.0
-            for a in range(dim):
-                e = x[i, a] - x[j, a]
-                r2 += e * e
-            c = solid[i] * m[j] * rho[j] / rho0[j] * (pi + p[j] / (rho[j] * rho[j])) \
-                * fac_grad(math.sqrt(r2), h, dim)
-            for a in range(dim):
-                out[i, a] -= c * (x[i, a] - x[j, a])
-    return out
-
-
-@njit(cache=True)
 def has_fluid_neighbour(fluid, indptr, indices):
     """1 for the owned rows with at least one fluid neighbour (uint8)."""
     n = indptr.shape[0] - 1
@@ -680,7 +686,7 @@ def has_fluid_neighbour(fluid, indptr, indices):
 
 
 @njit(cache=True)
-def pressure_gradient_corrected(x, p, m, rho, fluid, indptr, indices, h, dim):
+def pressure_gradient_corrected(x, p, m, rho, fluid, indptr, indices, h, dim, wet=None):
     r"""Corrected pressure gradient of the owned fluid rows (Pa/m); 0 elsewhere.
 
     :math:`\langle\nabla p\rangle_i = \mathbf{L}_i \sum_j V_j (p_j - p_i) \nabla W_{ij}`,
@@ -701,6 +707,8 @@ def pressure_gradient_corrected(x, p, m, rho, fluid, indptr, indices, h, dim):
         s[:] = 0.0
         for q in range(indptr[i], indptr[i + 1]):
             j = indices[q]
+            if wet is not None and not wet[j]:
+                continue
             r2 = 0.0
             for a in range(dim):
                 e = x[i, a] - x[j, a]

@@ -28,6 +28,7 @@ import numpy as np
 
 from decomposition.numbering import global_offset
 from decomposition.reduce import global_any, global_max, global_min, global_sum
+from parsph.coupling import pressure
 from parsph.fluid import assembly, rheology
 from parsph.contact import wall_contact
 from parsph.fluid.walls import wall_slip
@@ -42,7 +43,7 @@ PPE_HYPRE_OPTIONS = {"pc_hypre_boomeramg_agg_nl": "1"}
 
 STATS = ("viscous_number", "visc_iterations", "visc_residual", "ppe_iterations", "ppe_residual",
          "ppe_setup",
-         "n_free_surface", "fluid_contacts", "max_divergence", "wall_s_fluid_assembly",
+         "n_free_surface", "fluid_contacts", "max_divergence", "density_work", "wall_s_fluid_assembly",
          "wall_s_fluid_solve", "wall_s_visc_solve", "wall_s_ppe_solve", "wall_s_fluid_halo")
 
 
@@ -67,16 +68,17 @@ def lattice_density_ratio(h_over_d: float, dim: int) -> float:
 class Coupling:
     """What a coupled step (section 5) hands the fluid step.
 
-    ``acc``: predicted acceleration ``(v_pred - v) / dt`` of the owned rows (m/s^2, zero
-    but for solids), used in the wall-pressure extrapolation of the solid rows (eq. 43);
+    ``inv_mass``: inverse true mass (1/kg) of the owned rows per component, zero but for
+    solid rows and zero on a component a ``[[constraints]]`` box holds: the solid's
+    response to the pressure in the strongly coupled PPE (:mod:`parsph.coupling.pressure`);
     ``mass``: the mass of every row (owned and halo) as the fluid sees it — a solid
     particle of volume V counts as V rho_f (fixed wall ghost particles of the fluid's
     density, Adami et al. 2012), so the fluid's summation density, Laplacian and
     divergence do not see the solid's density; ``scale``: 0 for non-solid rows, the ratio
-    ``mass / m`` for solid rows (the reaction on the solid's true mass).
+    ``mass / m`` for solid rows (the viscous reaction on the solid's true mass).
     """
 
-    acc: np.ndarray
+    inv_mass: np.ndarray
     mass: np.ndarray
     scale: np.ndarray
 
@@ -117,6 +119,10 @@ class IISPH:
         p.add_field("free_surface", dtype=np.uint8)
         p.add_field("wall_slip", dtype=np.uint8)
         p.add_field("fluid_row", dtype=np.int64)
+        # the PPE's last solution of every row, the next solve's initial guess (a solid
+        # row's p is its mean stress, which the TLSPH stage writes, not an interface
+        # pressure: as a guess it made GMRES diverge at once where the soil failed)
+        p.add_field("p_ppe")
         self.table = rheology.material_table(ctx.materials)
         n = p.n_owned
         fluid = p["phase"][:n] == PHASE_FLUID
@@ -127,6 +133,8 @@ class IISPH:
         p["rho0"][:n] = rest
         p["rho"][:n] = rest
         p["wall_slip"][:n] = wall_slip(ctx.scene, p["body"][:n], ~fluid)
+        if not ctx.restarted:  # a boundary is out of contact with the fluid until it touches
+            p["free_surface"][:n] = ~fluid
         self.les = self.num.smagorinsky * self.num.les_width * ctx.h
         self._ppe = self._visc = None
         self._ppe_ids = None  # the particles of the PPE's rows at its last assembly
@@ -190,18 +198,20 @@ class IISPH:
             self._ppe_ids = ids.copy()
         return same
 
-    def _csr_buffers(self, system, capacity):
+    def _csr_buffers(self, system, capacity, key=None):
         """Work arrays ``(indptr, cols, values)`` for a CSR block of ``system``'s owned rows
         with room for ``capacity`` entries, kept from step to step (fresh arrays of this
         size would be allocated and page-faulted anew every step); grown by a quarter
-        when too small. ``cols`` has PETSc's index type."""
-        ptr, cols, vals = self._buffers.get(system.prefix, (None, None, None))
+        when too small. ``cols`` has PETSc's index type. ``key`` (default: the system's
+        prefix) names the set."""
+        key = key or system.prefix
+        ptr, cols, vals = self._buffers.get(key, (None, None, None))
         if ptr is None or ptr.size != system.n_local + 1:
             ptr = np.zeros(system.n_local + 1, dtype=system.index_dtype)
         if cols is None or cols.size < capacity:
             size = max(int(capacity), int(1.25 * cols.size) if cols is not None else 0)
             cols, vals = np.empty(size, dtype=system.index_dtype), np.empty(size)
-        self._buffers[system.prefix] = ptr, cols, vals
+        self._buffers[key] = ptr, cols, vals
         return ptr, cols, vals
 
     def destroy(self) -> None:
@@ -230,11 +240,12 @@ class IISPH:
         return dt
 
     @staticmethod
-    def _pin_if_confined(ctx, fluid, free) -> bool:
-        """Collective: with no free surface anywhere (a closed or periodic box) the PPE
-        fixes the pressure only up to a constant; the fluid particle of smallest id then
-        gets p = 0 (a Dirichlet row) so that the matrix is not singular. True if pinned."""
-        if global_sum(ctx.comm, int(free[fluid.astype(bool)].sum())) > 0:
+    def _pin_if_confined(ctx, fluid, free, n_coupled) -> bool:
+        """Collective: with no free surface anywhere (a closed or periodic box) and no
+        solid in the PPE (whose inertia fixes the level, docs/coupling.md) the PPE fixes
+        the pressure only up to a constant; the fluid particle of smallest id then gets
+        p = 0 (a Dirichlet row) so that the matrix is not singular. True if pinned."""
+        if global_sum(ctx.comm, int(free[fluid.astype(bool)].sum()) + int(n_coupled)) > 0:
             return False
         ids = ctx.particles["id"][: ctx.n_owned]
         mine = ids[fluid.astype(bool)]
@@ -262,7 +273,8 @@ class IISPH:
         fluid = (p["phase"] == PHASE_FLUID).astype(np.uint8)
         coupled = coupling is not None
         solid = coupling.scale if coupled else np.zeros(len(fluid))
-        solid_acc = coupling.acc if coupled else None
+        if coupled:
+            p["inv_mass"][:n] = coupling.inv_mass
         # rows of the systems: fluid rows, boundary rows with a fluid neighbour and every
         # wall row (a dry one is the identity row p = 0, v = v_wall): the rows then stay the
         # same particles while the fluid runs along a wall, which keeps the AMG set-up
@@ -278,7 +290,7 @@ class IISPH:
         row[:n] = -1
         row[:n][order] = offset + np.arange(n_act, dtype=np.int64)
         t_asm = time.perf_counter() - t0
-        self._halo(ctx, ["fluid_row"])
+        self._halo(ctx, ["fluid_row", "inv_mass"] if coupled else ["fluid_row"])
         t0 = time.perf_counter()
         x = p["x"]
         m = coupling.mass if coupled else p["m"]
@@ -287,14 +299,13 @@ class IISPH:
         slip = p["wall_slip"]
         rho, rho0 = p["rho"], p["rho0"]
         free = p["free_surface"]
-        pin = np.zeros(n)  # Dirichlet pressure of enclosed pockets (soil's mean stress)
         assembly.density_and_surface(x, m, fluid, rho0, indptr, indices, h, dim,
                                      self.num.free_surface_beta, self.num.free_surface_gamma,
-                                     rho, free, self.num.free_surface_min_fluid, solid,
-                                     p["p"], pin)
-        confined = self._pin_if_confined(ctx, fluid[:n], free[:n])
+                                     rho, free)
+        own_solid = (solid[:n] > 0) & act  # type II
+        confined = self._pin_if_confined(ctx, fluid[:n], free[:n], own_solid.sum())
         t_asm += time.perf_counter() - t0
-        self._halo(ctx, ["rho"])
+        self._halo(ctx, ["rho", "free_surface"])
 
         t0 = time.perf_counter()
         # wall rows enter the strain rate with their no-slip ghost velocity of the last
@@ -306,12 +317,14 @@ class IISPH:
         if self.num.numerical_viscosity > 0:  # kappa h sqrt(|g| h), vanishes as h^1.5
             gnorm = float(np.linalg.norm(ctx.body_acceleration(ctx.time)))
             p["nu"][:n][fluid[:n] == 1] += self.num.numerical_viscosity * h * math.sqrt(gnorm * h)
+        if coupled:  # the solids' acceleration per unit of their own pressure
+            p["a_self"][:n] = pressure.self_response(x, m, rho, rho0, fluid, solid,
+                                                     p["inv_mass"], indptr, indices, h, dim)
         t_asm += time.perf_counter() - t0
-        self._halo(ctx, ["nu"])
+        self._halo(ctx, ["nu", "a_self"] if coupled else ["nu"])
 
         g = np.asarray(ctx.body_acceleration(ctx.time), dtype=np.float64)
         own_fluid = fluid[:n] == 1
-        own_solid = (solid[:n] > 0) & act  # type II
         wall = act & ~own_fluid & (solid[:n] == 0)
         morris = self.num.viscous_term == "morris"
         zeta = global_max(ctx.comm, float(p["nu"][:n][own_fluid].max()) * dt / (h * h)
@@ -320,7 +333,7 @@ class IISPH:
         explicit = not coupled and (mode == "explicit" or (
             mode == "auto" and zeta < self.num.explicit_viscous_number))
         vs = p["v_star"]
-        vs[:n] = p["v"][:n] + dt * g  # wall rows: wall velocity + dt g (docs/iisph.md)
+        vs[:n] = p["v"][:n]  # walls: their velocity (the fluid rows get theirs below)
         if explicit:  # zeta << 1: forward Euler on the operator of eq. (34), no matrix
             t0 = time.perf_counter()
             assembly.ghost_velocity(x, p["v"], fluid, slip, indptr, indices, h, dim,
@@ -354,24 +367,39 @@ class IISPH:
         # eq. (32) by (dt_cfl / dt)^2: alpha is rescaled so the correction is per CFL step
         alpha = self.num.alpha * min(1.0, (dt / self._dt_cfl) ** 2) if self._dt_cfl > 0 \
             else self.num.alpha
-        acc = solid_acc if coupled else np.zeros((n, dim))  # fixed walls: a_w = 0
         ptr, cols, vals = self._csr_buffers(ppe, indptr[n] + n)
+        expansion = self.num.density_correction == "both" or (
+            self.num.density_correction == "auto" and not confined)
         nnz, rhs = assembly.ppe_csr(
-            x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt,
-            alpha, d, g, np.ascontiguousarray(acc), pin, self.num.ppe_laplacian == "corrected",
-            self.num.density_correction == "both" or
-            (self.num.density_correction == "auto" and not confined), ppe.offset, ptr, cols, vals)
+            x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt, alpha, d,
+            self.num.ppe_laplacian == "corrected", expansion, ppe.offset, ptr, cols, vals)
+        if coupled:  # the solid-response term (strong coupling, docs/coupling.md)
+            near = self._csr_buffers(ppe, nnz, key="near")
+            n_near = pressure.add_near_response(
+                x, m, rho, rho0, fluid, free, solid, row, p["inv_mass"], p["a_self"], indptr,
+                indices, h, dim, d, ppe.offset, ptr, cols, vals, *near)
+            blocks = pressure.response_blocks(x, m, rho, rho0, fluid, free, solid, row,
+                                              p["inv_mass"], indptr, indices, h, dim, d)
         ppe.assemble_csr(ptr, cols[:nnz], vals[:nnz],
                          same_unknowns=self._same_ppe_rows(p["id"][:n][order]))
+        if coupled:
+            ppe.set_product(*blocks, near=(near[0], near[1][:n_near], near[2][:n_near]))
         t_asm += time.perf_counter() - t0
-        pres, info_p = ppe.solve(rhs[order], x0=p["p"][:n][order])
+        pres, info_p = ppe.solve(rhs[order], x0=p["p_ppe"][:n][order])
+        p["p_ppe"][:n][order] = pres
         if self.num.clamp_negative_pressure:  # MPS practice (Koshizuka & Oka 1996)
-            # wall rows above the free surface extrapolate a negative pressure that keeps
-            # the corner particle in equilibrium: clamped, it is pushed off the wall
-            clamp = own_fluid[order] | self.num.clamp_wall_pressure
-            pres = np.where(clamp, np.maximum(pres, 0.0), pres)
+            # every row: a boundary's negative pressure is suction, which would hold the
+            # fluid to a wall or the soil it leaves
+            pres = np.maximum(pres, 0.0)
         p["p"][:n][order] = pres
         self._halo(ctx, ["p"])
+        # the work the density term of eq. (32) lets the pressure do: it asks a compressed
+        # particle to expand by alpha (rho - rho0) / rho0 in the step, which a projection
+        # without it would not (a source of kinetic energy, counted in energy_bound)
+        inner = own_fluid & (free[:n] == 0)
+        drho = rho[:n] - rho0[:n] if expansion else np.maximum(rho[:n] - rho0[:n], 0.0)
+        work = alpha * p["p"][:n] * m[:n] / rho[:n] * drho / rho0[:n]
+        density_work = float(np.maximum(work[inner], 0.0).sum())
 
         t0 = time.perf_counter()
         mode = self.num.pressure_gradient
@@ -382,16 +410,34 @@ class IISPH:
             grad = assembly.pressure_gradient(x, p["p"], m, rho, fluid, indptr, indices, h, dim)
             if mode == "hybrid":  # surface rows (p = 0, half a support): corrected
                 surface = (free[:n] == 1).astype(np.uint8) & fluid[:n]
+                # the fluid's pressure over its fluid neighbours only, and each solid
+                # neighbour's (type II in contact: a no-penetration multiplier) by the
+                # symmetric pair of eq. (37), the exact reaction of the force the solid
+                # gets (eq. (45)). With the boundaries in the corrected sum the gradient
+                # of a lone particle on a floor tilted by 8 % and pushed it back at
+                # 5 cm/s; without the solids a surface particle pushed a solid without
+                # being pushed back (a block twice as dense as water gained 3x the energy
+                # gravity can supply); with the walls' pair too, the surface particles of
+                # a tank at rest were pushed off the side walls. Walls hold a surface
+                # particle through the contact rule below (docs/coupling.md)
+                wet = (fluid == 1).astype(np.uint8)
                 corr = assembly.pressure_gradient_corrected(x, p["p"], m, rho, surface, indptr,
-                                                            indices, h, dim)
+                                                            indices, h, dim, wet)
+                p_bnd = np.where((solid > 0) & (__import__("os").environ.get("PARSPH_NOPAIR") is None), p["p"], 0.0)
+                corr += assembly.pressure_gradient(x, p_bnd, m, rho, surface, indptr, indices,
+                                                   h, dim)
                 grad[surface == 1] = corr[surface == 1]
         vnew = vs[:n] - dt * grad / rho0[:n, None]
         if own_solid.any():  # eq. (48): the reaction of the fluid pressure, eq. (45)
             mark = np.zeros(len(fluid))
             mark[:n][own_solid] = solid[:n][own_solid]
-            react = assembly.coupling_pressure_acceleration(x, p["p"], m, rho, rho0, fluid, mark,
-                                                            indptr, indices, h, dim)
-            p["v"][:n][own_solid] = vs[:n][own_solid] + dt * react[own_solid]
+            force = pressure.solid_pressure_force(x, p["p"], m, rho, rho0, fluid, mark,
+                                                  indptr, indices, h, dim)
+            p["v"][:n][own_solid] = vs[:n][own_solid] \
+                + dt * p["inv_mass"][:n][own_solid] * force[own_solid]
+            self.solid_force = force
+        else:
+            self.solid_force = np.zeros((n, dim))
         contacts = 0
         if self.num.surface_wall_contact:
             # a free-surface row (p = 0, or a pocket's soil pressure) is held off a wall or
@@ -426,6 +472,7 @@ class IISPH:
             "fluid_contacts": int(global_sum(comm, contacts)),
             "max_divergence": global_max(comm, float(np.abs(div[inner]).max()) if inner.any()
                                          else 0.0),
+            "density_work": global_sum(comm, density_work),
             "wall_s_fluid_assembly": t_asm,
             "wall_s_fluid_solve": info_v["time_s"] + info_p["time_s"],
             "wall_s_visc_solve": info_v["time_s"],

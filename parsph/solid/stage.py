@@ -31,7 +31,7 @@ from parsph.materials import PHASE_SOLID
 from parsph.solid import kernels
 from parsph.contact import wall_contact
 from parsph.solid.boundary import initial_velocity, velocity_masks
-from parsph.solid.update import CAM_CLAY, HENCKY, C, material_table, stress_terms, \
+from parsph.solid.update import CAM_CLAY, C, material_table, stress_terms, \
     update_particles, wave_speed
 
 TRIAXIAL_COLUMNS = ("axial_strain", "p_eff", "q", "spec_volume", "M")
@@ -129,7 +129,8 @@ class TLSPH:
                      p.n_owned, ctx.dim, self.num.ambient_pressure, p["Q"])
 
     # ------------------------------------------------------------------ time step
-    def _wave_speed(self, ctx) -> float:
+    def max_wave_speed(self, ctx) -> float:
+        """Collective: the largest P-wave speed c_p of the owned solids (m/s)."""
         p = ctx.particles
         c = wave_speed(self.tab, p["material"], p["p"], p["porosity"], self.sel, p.n_owned,
                        p["modulus"])
@@ -141,7 +142,7 @@ class TLSPH:
         n = p.n_owned
         v = p["v"][:n][self.sel[:n]]
         vmax = float(np.sqrt((v * v).sum(axis=1).max())) if len(v) else 0.0
-        speed = self._wave_speed(ctx) + global_max(ctx.comm, vmax)
+        speed = self.max_wave_speed(ctx) + global_max(ctx.comm, vmax)
         return self.num.cfl * ctx.d / speed if speed > 0 else math.inf
 
     def step(self, ctx, dt: float) -> None:
@@ -149,14 +150,17 @@ class TLSPH:
         self.predict(ctx, dt)
         self.finish_step(ctx, dt)
 
-    def predict(self, ctx, dt: float) -> None:
-        r"""Steps 1-3: :math:`\mathbf v^{\beta+1}` of eq. (7) (stress, JST, body force),
-        Dirichlet constraints and wall contact. A coupled step (section 5) corrects the
-        type-II rows' velocity between :meth:`predict` and :meth:`finish_step`."""
+    def predict(self, ctx, dt: float, extra=None, cp=None) -> None:
+        r"""Steps 1-3: :math:`\mathbf v^{\beta+1}` of eq. (7) (stress, JST, body force, and
+        ``extra``, an acceleration of the owned rows (n_owned, dim) if given), Dirichlet
+        constraints and wall contact. A coupled step (section 5) corrects the type-II rows'
+        velocity between :meth:`predict` and :meth:`finish_step`. ``cp``: the wave speed
+        of the JST term (m/s; default: computed now, a collective)."""
         p, n, dim = ctx.particles, ctx.particles.n_owned, ctx.dim
         X, sel, fp = self.X3, self.sel, self.fp
         args = (n, ctx.indptr, ctx.indices)
-        cp = self._wave_speed(ctx)
+        if cp is None:
+            cp = self.max_wave_speed(ctx)
         alpha = self.num.hourglass
         ctx.update_halo(["Q", "x", "F", "modulus"] if alpha > 0.0 else ["Q", "x"])
         acc = np.zeros((n, 3))
@@ -178,14 +182,11 @@ class TLSPH:
                 jst = jst - ctx.d ** 2 * eps4 * lap4
             acc += cp * ctx.d * jst
         acc = acc[:, :dim] + np.asarray(ctx.body_acceleration(ctx.time), dtype=float)[:dim]
+        if extra is not None:
+            acc += extra
         solid = sel[:n]
         v = p["v"]
         v[:n][solid] += dt * acc[solid]
-        # the acceleration of the forces (coupling: the wall-pressure extrapolation of
-        # eq. (43) uses it; held rows do not accelerate; contact impulses are left out)
-        acc[~solid] = 0.0
-        acc[self.vmask] = 0.0
-        self.force_acceleration = acc
         self.constrain(ctx)
         self._stats["solid_contacts"] = self._contact(ctx) if self.has_walls else 0
 
@@ -195,9 +196,10 @@ class TLSPH:
         n = ctx.particles.n_owned
         v[:n][self.vmask] = self.vvalue[self.vmask]
 
-    def finish_step(self, ctx, dt: float) -> None:
+    def finish_step(self, ctx, dt: float, stats: bool = True) -> None:
         r"""Steps 4-5: :math:`\dot{\mathbf F}` (eq. (14)) from the final velocities, the
-        constitutive update and :math:`\mathbf x^{\beta+1}`."""
+        constitutive update and :math:`\mathbf x^{\beta+1}`; ``stats`` (collective sums
+        for stats.csv) may be skipped in all but the last sub-step of a coupled step."""
         p, n, dim = ctx.particles, ctx.particles.n_owned, ctx.dim
         X, sel, fp = self.X3, self.sel, self.fp
         args = (n, ctx.indptr, ctx.indices)
@@ -221,6 +223,8 @@ class TLSPH:
         raise_if_any(ctx.comm, error)
         p["x"][:n][solid] += dt * v[:n][solid]
         self._stress_terms(ctx)
+        if not stats:
+            return
         self._stats["solid_plastic"] = global_sum(ctx.comm, plastic)
         self._stats["elastic_energy"] = self._elastic_energy(ctx)
         if self.num.triaxial_csv:
@@ -249,10 +253,12 @@ class TLSPH:
         return global_sum(ctx.comm, count)
 
     def _elastic_energy(self, ctx) -> float:
-        """Stored Hencky energy sum V0 (mu dev e : dev e + K/2 tr(e)^2) (J or J/m in 2D)."""
+        """Stored Hencky energy sum V0 (mu dev e : dev e + K/2 tr(e)^2) (J or J/m in 2D) of
+        the Hencky and Drucker-Prager solids (whose elastic part is Hencky's, with the
+        elastic strain of eq. (26)); Cam-Clay's pressure-dependent elasticity is left out."""
         p, n = ctx.particles, ctx.particles.n_owned
         mat = p["material"][:n]
-        keep = self.sel[:n] & (self.tab[np.maximum(mat, 0), C["model"]] == HENCKY)
+        keep = self.sel[:n] & (self.tab[np.maximum(mat, 0), C["model"]] != CAM_CLAY)
         e = p["eps_e"][:n][keep]
         K = self.tab[mat[keep], C["K"]]
         mu = self.tab[mat[keep], C["mu"]]

@@ -1,0 +1,377 @@
+"""The strongly coupled pressure step (docs/coupling.md, parsph/coupling/pressure.py).
+
+The PPE sees each type-II solid particle's velocity after the pressure has acted on its
+true mass; these tests check what that buys: no energy from the projection at any
+density ratio, the exact operator on any rank count, no pocket rule.
+"""
+import os
+
+import numpy as np
+import pytest
+
+from parsph.run import _build
+from parsph.scene import load_scene
+from tests.scenes import write
+
+#: A water block with an elastic block inside it, no gravity, no walls: a state for one
+#: pressure step (velocities are set by the test).
+BLOCK_IN_BLOB = """
+[scene]
+name = "block_in_blob"
+[domain]
+dim = 2
+particle_size = 0.02
+lo = [-0.5, -0.5]
+hi = [0.9, 0.9]
+[run]
+end_time = 1.0
+[output]
+every = 1.0
+progress = false
+[gravity]
+g = [0.0, 0.0]
+[fluid]
+alpha = 0.0
+[solid]
+jst_eps4 = 0.0
+[materials.water]
+model = "newtonian"
+density = 1000.0
+viscosity = 0.0
+[materials.block]
+model = "hencky"
+density = 1000.0
+young_modulus = 1.0e6
+poisson_ratio = 0.3
+[[bodies]]
+name = "w_left"
+material = "water"
+shape = "box"
+lo = [0.0, 0.0]
+hi = [0.12, 0.4]
+[[bodies]]
+name = "w_right"
+material = "water"
+shape = "box"
+lo = [0.26, 0.0]
+hi = [0.4, 0.4]
+[[bodies]]
+name = "w_below"
+material = "water"
+shape = "box"
+lo = [0.12, 0.0]
+hi = [0.26, 0.14]
+[[bodies]]
+name = "w_above"
+material = "water"
+shape = "box"
+lo = [0.12, 0.24]
+hi = [0.26, 0.4]
+[[bodies]]
+name = "block"
+material = "block"
+shape = "box"
+lo = [0.12, 0.14]
+hi = [0.26, 0.24]
+"""
+
+
+def _scene(tmp, text, overrides, comm):
+    path = comm.bcast(write(tmp, text) if comm.rank == 0 else None)
+    return load_scene(path, list(overrides))
+
+
+def _kinetic_energy(ctx):
+    from decomposition.reduce import global_sum
+
+    p, n = ctx.particles, ctx.n_owned
+    moving = p["phase"][:n] != 2
+    v = p["v"][:n][moving]
+    return global_sum(ctx.comm, float(0.5 * (p["m"][:n][moving] * (v * v).sum(axis=1)).sum()))
+
+
+@pytest.mark.parametrize("ratio", [0.5, 1.0, 2.0, 10.0])
+@pytest.mark.parametrize("field", ["noise", "smooth"])
+def test_pressure_step_never_adds_kinetic_energy(comm, mpi_tmp_path, ratio, field):
+    """Without body force, viscosity, solid damping and the density term (alpha = 0),
+    one coupled step of a random velocity field (white noise per particle, or a smooth
+    random field) of water and an elastic block at rho_s / rho_f = ratio only projects
+    the velocities: their kinetic energy must not rise. A partitioned coupling (the
+    solid a wall at its predicted velocity, the reaction after) gives no such bound."""
+    scene = _scene(mpi_tmp_path, BLOCK_IN_BLOB, [f"materials.block.density={1000.0 * ratio}"],
+                   comm)
+    out = os.path.join(mpi_tmp_path, "out")
+    for seed in range(3):
+        ctx, _, stages, _ = _build(scene, out, comm, (), None)
+        (stage,) = stages
+        p, n = ctx.particles, ctx.n_owned
+        rng = np.random.default_rng(seed)
+        ids = p["id"][:n]
+        if field == "noise":  # by global id: the same state on any rank count
+            table = rng.normal(size=(int(comm.allreduce(int(ids.max()), op=_max())) + 1, 2))
+            p["v"][:n] = table[ids]
+        else:
+            k = rng.normal(size=(6, 2)) * 12.0
+            amp = rng.normal(size=(6, 2))
+            phase = rng.uniform(0, 2 * np.pi, size=6)
+            x = p["x"][:n]
+            p["v"][:n] = sum(amp[j] * np.sin(x @ k[j] + phase[j])[:, None] for j in range(6))
+        p["v"][:n][p["phase"][:n] == 2] = 0.0
+        ke0 = _kinetic_energy(ctx)
+        dt = min(s.max_dt(ctx) for s in stages)
+        stage.step(ctx, dt)
+        ke1 = _kinetic_energy(ctx)
+        assert stage.stats()["n_coupled"] > 0
+        assert ke1 <= ke0 * (1.0 + 1e-9), f"seed {seed}: kinetic energy {ke0:.6g} -> {ke1:.6g}"
+        assert ke1 < 0.999 * ke0  # the projection did remove the compressive part
+        stage.finish(ctx)
+
+
+def _max():
+    from mpi4py import MPI
+
+    return MPI.MAX
+
+
+def _lattice_pair(d=0.1):
+    """A 5 x 4 block of fluid (rows 0..19) on a 5 x 2 block of solid (rows 20..29), one
+    rank, every pair within the support listed; fluid-seen masses, solid true mass 3x."""
+    from parsph.kernel import smoothing_length, support_radius
+    from parsph.neighbours import build_csr
+
+    h = smoothing_length(d)
+    xs = np.arange(5) * d
+    fl = np.array([[a, (b + 0.5) * d] for b in range(4) for a in xs])
+    so = np.array([[a, -(b + 0.5) * d] for b in range(2) for a in xs])
+    x = np.concatenate([fl, so]) + np.random.default_rng(7).normal(scale=0.05 * d, size=(30, 2))
+    indptr, indices = build_csr(x, len(x), support_radius(h))
+    fluid = np.r_[np.ones(20), np.zeros(10)].astype(np.uint8)
+    m = np.full(30, 1000.0 * d * d)
+    scale = np.r_[np.zeros(20), np.full(10, 1.0 / 3.0)]
+    rho = np.r_[1000.0 + np.random.default_rng(8).normal(scale=5.0, size=20), np.full(10, 1000.0)]
+    rho0 = np.full(30, 1000.0)
+    free = np.zeros(30, dtype=np.uint8)
+    free[15:20] = 1  # the top row: free surface
+    inv_mass = np.zeros((30, 2))
+    inv_mass[20:] = 1.0 / (3.0 * m[20:, None])
+    inv_mass[25:, 1] = 0.0  # the lower solid row held vertically
+    row = np.arange(30, dtype=np.int64)
+    return d, h, x, indptr, indices.astype(np.int64), fluid, m, scale, rho, rho0, free, \
+        inv_mass, row
+
+
+def _dense(ptr, cols, vals, n_rows, n_cols):
+    A = np.zeros((n_rows, n_cols))
+    for r in range(n_rows):
+        A[r, cols[ptr[r]:ptr[r + 1]]] += vals[ptr[r]:ptr[r + 1]]
+    return A
+
+
+def test_the_ppe_sees_the_solid_velocity_after_the_pressure():
+    """The coupled operator is the compact PPE plus the solid-response term, and that term
+    is exactly the change of the right-hand side when the type-II particles' v* becomes
+    v* + dt a_s(p), a_s(p) their reaction (eq. (45)) on their true mass (held components
+    excluded): the divergence sees the solid's velocity after the pressure acts. The part
+    assembled into the preconditioner's matrix (neighbour pairs) is the product's."""
+    from parsph.coupling import pressure
+    from parsph.fluid import assembly
+
+    d, h, x, indptr, indices, fluid, m, scale, rho, rho0, free, inv, row = _lattice_pair()
+    dt, n = 1e-3, 30
+    a_self = pressure.self_response(x, m, rho, rho0, fluid, scale, inv, indptr, indices, h, 2)
+    cap = indptr[-1] + n
+    ptr, cols, vals = np.zeros(n + 1, np.int64), np.empty(cap, np.int64), np.empty(cap)
+
+    def rhs_of(vs):
+        _, rhs = assembly.ppe_csr(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, 2,
+                                  dt, 0.0, d, True, True, 0, ptr, cols, vals)
+        return rhs
+
+    vs = np.random.default_rng(1).normal(size=(n, 2))
+    nnz, rhs = assembly.ppe_csr(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, 2,
+                                dt, 0.0, d, True, True, 0, ptr, cols, vals)
+    C = _dense(ptr, cols, vals, n, n)
+    nptr, ncols, nvals = np.zeros(n + 1, np.int64), np.empty(nnz, np.int64), np.empty(nnz)
+    k = pressure.add_near_response(x, m, rho, rho0, fluid, free, scale, row, inv, a_self, indptr,
+                                   indices, h, 2, d, 0, ptr, cols, vals, nptr, ncols, nvals)
+    P = _dense(ptr, cols, vals, n, n)
+    N = _dense(nptr, ncols[:k], nvals[:k], n, n)
+    bp, bc, left, right = pressure.response_blocks(x, m, rho, rho0, fluid, free, scale, row, inv,
+                                                   indptr, indices, h, 2, d)
+    assert len(bp) - 1 == 2 * 10  # both solid rows are within the support: type II
+    L = _dense(bp, bc, left, len(bp) - 1, n)
+    R = _dense(bp, bc, right, len(bp) - 1, n)
+    assert np.allclose(P - N, C, rtol=0, atol=1e-12 * np.abs(C).max())
+    response = L.T @ R
+    unknown = (fluid == 1) & (free == 0) | (scale > 0)
+    for seed in range(3):
+        p = np.random.default_rng(10 + seed).normal(scale=1e3, size=n)
+        p[~unknown] = 0.0  # free-surface rows are p = 0
+        force = pressure.solid_pressure_force(x, p, m, rho, rho0, fluid, scale, indptr, indices,
+                                              h, 2)
+        moved = vs + dt * inv * force
+        expect = -(rhs_of(moved) - rhs)
+        assert np.abs(expect).max() > 0.0
+        assert response @ p == pytest.approx(expect, rel=1e-10, abs=1e-12 * np.abs(expect).max())
+    # the preconditioner's part: the product on neighbour pairs, nothing else
+    pairs = np.zeros((n, n), dtype=bool)
+    for i in range(n):
+        pairs[i, indices[indptr[i]:indptr[i + 1]]] = True
+        pairs[i, i] = True
+    assert np.allclose(N[pairs], response[pairs], rtol=1e-12, atol=1e-14 * np.abs(response).max())
+    assert np.all(N[~pairs] == 0.0) and np.abs(response[~pairs]).max() > 0.0  # the far part
+
+
+#: An elastic block straddling the surface of water in a tank (its draft 0.6 of its
+#: height): lighter than water it floats up to Archimedes' draft, heavier it sinks.
+BLOCK_IN_TANK = """
+[scene]
+name = "block_in_tank"
+[domain]
+dim = 2
+particle_size = 0.01
+lo = [-0.05, -0.05]
+hi = [0.65, 0.6]
+[run]
+end_time = 1.5
+[output]
+every = 0.1
+progress = false
+[gravity]
+g = [0.0, -9.81]
+[solid]
+max_substeps = 16
+[materials.water]
+model = "newtonian"
+density = 1000.0
+viscosity = 1.0e-6
+[materials.block]
+model = "hencky"
+density = 500.0
+young_modulus = 2.0e5
+poisson_ratio = 0.3
+[[bodies]]
+name = "w_left"
+material = "water"
+shape = "box"
+lo = [0.0, 0.0]
+hi = [0.25, 0.35]
+[[bodies]]
+name = "w_right"
+material = "water"
+shape = "box"
+lo = [0.35, 0.0]
+hi = [0.6, 0.35]
+[[bodies]]
+name = "w_below"
+material = "water"
+shape = "box"
+lo = [0.25, 0.0]
+hi = [0.35, 0.29]
+[[bodies]]
+name = "block"
+material = "block"
+shape = "box"
+lo = [0.25, 0.29]
+hi = [0.35, 0.39]
+[[walls]]
+name = "tank"
+shape = "tank"
+lo = [0.0, 0.0]
+hi = [0.6, 0.55]
+sides = ["left", "right", "bottom"]
+"""
+
+
+def _draft(frame, d):
+    """Draft (m) of the block: the water level away from it (the top of each column of
+    fluid particles at x < 0.15 or x > 0.45, plus d/2) minus the block's bottom."""
+    block, fl = frame["phase"] == 0, frame["phase"] == 1
+    bottom = frame["x"][block][:, 1].min() - 0.5 * d
+    x = frame["x"][fl]
+    far = (x[:, 0] < 0.15) | (x[:, 0] > 0.45)
+    cols = np.round(x[far, 0] / d).astype(int)
+    level = np.mean([x[far][cols == c][:, 1].max() for c in np.unique(cols)]) + 0.5 * d
+    return level - bottom
+
+
+@pytest.mark.parametrize("ratio", [0.5, 1.0, 2.0, 10.0])
+def test_block_in_water_at_any_density_ratio(comm, mpi_tmp_path, ratio):
+    """An elastic block straddling the surface of water, rho_s / rho_f = 0.5, 1, 2, 10, all
+    with the scene's defaults: no three steps raise the kinetic energy by more than
+    gravity, the block's released elastic energy and the PPE's density term can supply
+    (stats.csv energy_bound); the light block floats at Archimedes' draft, half its
+    height; the heavy ones sink. A partitioned coupling blew up when fluid and solid had
+    comparable mass (the gate of docs/coupling.md). The heaviest block is followed until
+    just before it reaches the floor: its impact through the last film of water is a hard
+    case of its own (docs/coupling.md)."""
+    from parsph.io import read_frame, read_frames
+    from parsph.run import run
+
+    end = 0.25 if ratio > 5 else 1.5
+    scene = _scene(mpi_tmp_path, BLOCK_IN_TANK, [f"materials.block.density={1000.0 * ratio}",
+                                                  f"run.end_time={end}", "output.every=0.05"],
+                   comm)
+    out = os.path.join(mpi_tmp_path, "out")
+    run(scene, out, comm=comm, progress=False)
+    if comm.rank != 0:
+        return
+    import csv
+
+    with open(os.path.join(out, "stats.csv")) as fh:
+        rows = list(csv.DictReader(fh))
+    ke = np.array([float(r["kinetic_energy"]) for r in rows])
+    bound = np.array([float(r["energy_bound"]) for r in rows])
+    rise = ke[3:] - ke[:-3]
+    supply = bound[1:-2] + bound[2:-1] + bound[3:]
+    worst = int(np.argmax(rise / supply))
+    assert rise[worst] <= supply[worst], \
+        f"t = {rows[worst + 3]['time']} s: kinetic energy rose by {rise[worst]:.3g} J in three " \
+        f"steps, {rise[worst] / supply[worst]:.2f} times what can supply it"
+    assert min(float(r["n_coupled"]) for r in rows[1:]) > 0
+    h5 = os.path.join(out, "particles.h5")
+    d = scene.domain.particle_size
+    frames = [(t, read_frame(h5, step)) for step, t in read_frames(h5)]
+    if ratio < 1.0:  # floats: the mean draft over the last second, within d/2 of rho_s/rho_f H
+        drafts = [_draft(f, d) for t, f in frames if t >= 0.5]
+        assert np.mean(drafts) == pytest.approx(ratio * 0.1, abs=0.5 * d)
+    else:  # sinks: below its start, faster the heavier
+        f = frames[-1][1]
+        assert f["x"][f["phase"] == 0][:, 1].min() < 0.29 - (0.02 if ratio > 1.0 else 0.0)
+
+
+#: Tolerance of the gate's free-end displacement, mean |simulated - measured| over the
+#: measured points to 0.4 s (m). Published simulations of the same experiment differ from
+#: it by 3.6 mm (Antoci et al.'s own SPH, horizontal) to 10-11 mm (Yang et al.'s SPH-FEM);
+#: we ask for the latter's spread (docs/coupling.md, "elastic_gate").
+GATE_TOLERANCE = {"x": 0.011, "y": 0.011}
+
+
+@pytest.mark.slow
+@pytest.mark.mpi(min_size=2)
+def test_elastic_gate_against_the_experiment(comm, mpi_tmp_path):
+    """``elastic_gate`` (Antoci, Gallati & Sibilla 2007) on 2 ranks to 0.4 s, the built-in
+    scene as it is: the free end opens as measured (within the spread of published
+    simulations), it stays stable (no step makes energy) and the gate survives."""
+    from parsph.coupling.references import free_end, gate_errors
+    from parsph.run import run
+
+    scene = load_scene("elastic_gate", ["output.progress=false"])
+    out = os.path.join(mpi_tmp_path, "gate")
+    run(scene, out, comm=comm, progress=False)
+    if comm.rank != 0:
+        return
+    import csv
+
+    with open(os.path.join(out, "stats.csv")) as fh:
+        rows = list(csv.DictReader(fh))
+    assert float(rows[-1]["time"]) == pytest.approx(0.4)
+    assert float(rows[-1]["n_fluidised"]) == 0
+    t, dx, dy = free_end(out)
+    assert t[-1] == pytest.approx(0.4)
+    assert 0.03 < dx.max() < 0.06  # opened (the experiment: 46 mm at 0.16 s)
+    ex, ey = gate_errors(out)
+    assert ex < GATE_TOLERANCE["x"], f"horizontal: mean error {ex * 1e3:.1f} mm"
+    assert ey < GATE_TOLERANCE["y"], f"vertical: mean error {ey * 1e3:.1f} mm"
+    ratio = np.array([float(r["energy_ratio"]) for r in rows])
+    assert ratio.max() <= 1.0, f"t = {rows[int(np.argmax(ratio))]['time']} s: {ratio.max():.2f}"
