@@ -58,6 +58,7 @@ import math
 import numpy as np
 from numba import njit
 
+from parsph.fluid.assembly import _column_slot
 from parsph.kernel import fac_grad
 
 __all__ = ["self_response", "response_blocks", "add_near_response", "solid_pressure_force"]
@@ -179,13 +180,13 @@ def response_blocks(x, m, rho, rho0, fluid, free, solid, row, inv_mass, indptr, 
                 gss[a] -= m[s] * c / (rho[s] * rho[s]) * g[a]
             if free[f] or row[f] < 0:
                 continue
-            u = _find(cols, base, t, row[f])
+            u = _column_slot(cols, base, t, row[f])
             c = -m[s] * c / (rho[f] * rho[f])
             for a in range(dim):
                 left[base + a * t + u] -= m[s] * g[a]
                 right[base + a * t + u] += half * inv_mass[s, a] * c * g[a]
         if not free[s]:
-            u = _find(cols, base, t, row[s])
+            u = _column_slot(cols, base, t, row[s])
             for a in range(dim):
                 left[base + a * t + u] += dss[a]
                 right[base + a * t + u] += half * inv_mass[s, a] * gss[a]
@@ -194,19 +195,6 @@ def response_blocks(x, m, rho, rho0, fluid, free, solid, row, inv_mass, indptr, 
             ptr[r] = base + (a + 1) * t
         k = base + dim * t
     return ptr, cols[:k], left[:k], right[:k]
-
-
-@njit(cache=True, inline="always")
-def _find(cols, base, t, col):
-    """Slot of column ``col`` among ``cols[base:base + t]`` (sorted, present)."""
-    lo, hi = 0, t - 1
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if cols[base + mid] < col:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo
 
 
 @njit(cache=True)
@@ -258,7 +246,7 @@ def add_near_response(x, m, rho, rho0, fluid, free, solid, row, inv_mass, a_self
                 for a in range(dim):
                     dsi[a] *= m[s]
                 if not free[s]:  # b = s: the particle's own pressure
-                    u = _find(cols, start, stop - start, row[s])
+                    u = _column_slot(cols, start, stop - start, row[s])
                     val = 0.0
                     for a in range(dim):
                         val += dsi[a] * a_self[s, a]
@@ -276,7 +264,7 @@ def add_near_response(x, m, rho, rho0, fluid, free, solid, row, inv_mass, a_self
                         val += dsi[a] * inv_mass[s, a] * c * g[a]
                     if val == 0.0:
                         continue
-                    u = _find(cols, start, stop - start, row[b])
+                    u = _column_slot(cols, start, stop - start, row[b])
                     vals[start + u] += half * val
                     near_vals[k + u] += half * val
         elif typeii:
@@ -291,7 +279,7 @@ def add_near_response(x, m, rho, rho0, fluid, free, solid, row, inv_mass, a_self
                 near_cols[k + u - start] = cols[u]
                 near_vals[k + u - start] = 0.0
             touched = True
-            u = _find(cols, start, stop - start, row[i])
+            u = _column_slot(cols, start, stop - start, row[i])
             val = 0.0
             for a in range(dim):
                 val += dss[a] * a_self[i, a]
@@ -306,7 +294,7 @@ def add_near_response(x, m, rho, rho0, fluid, free, solid, row, inv_mass, a_self
                 val = 0.0
                 for a in range(dim):
                     val += dss[a] * inv_mass[i, a] * c * g[a]
-                u = _find(cols, start, stop - start, row[f])
+                u = _column_slot(cols, start, stop - start, row[f])
                 vals[start + u] += half * val
                 near_vals[k + u] += half * val
         if touched:
