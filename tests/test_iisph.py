@@ -250,6 +250,44 @@ def test_strain_rate_of_simple_shear_and_bingham_viscosity():
     assert nu[2] == pytest.approx(1e-3 + tau_y / (2.0 * 1655.0))
 
 
+def _lattice_gradient(x, p, h, dim=2):
+    """The corrected pressure gradient of particle 0 over every other point of ``x``."""
+    n = len(x)
+    near = np.flatnonzero(np.linalg.norm(x - x[0], axis=1) < 2 * h)
+    near = near[near != 0].astype(np.int32)
+    ones = np.ones(n)
+    return assembly.pressure_gradient_corrected(
+        x, p, ones * 1000 * 0.01, ones * 1000, np.ones(n, np.uint8), np.array([0, len(near)]),
+        near, h, dim)[0]
+
+
+def test_corrected_gradient_is_exact_on_a_half_space_and_bounded_on_a_film():
+    """Eigenvalues of the moment matrix floored at 2^-dim (a corner's support): a linear
+    pressure on a half space and on a quadrant is still exact, and a film one particle
+    thick (no neighbour across it) gets at most 2^dim times the uncorrected sum across it
+    instead of an unbounded extrapolation (the thin front of docs/coupling.md)."""
+    d = 0.1
+    h = smoothing_length(d)
+    k = np.arange(-4, 5) * d
+    grid = np.stack(np.meshgrid(k, k, indexing="ij"), -1).reshape(-1, 2)
+    for keep in (grid[:, 1] <= 1e-9,                                  # half space below
+                 (grid[:, 1] <= 1e-9) & (grid[:, 0] <= 1e-9)):        # a corner
+        x = grid[keep]
+        x = np.concatenate([[[0.0, 0.0]], x[np.linalg.norm(x, axis=1) > 1e-9]])
+        p = 1000.0 * 9.81 * (0.0 - x[:, 1]) + 300.0 * x[:, 0]
+        assert _lattice_gradient(x, p, h) == pytest.approx([300.0, -9810.0], rel=1e-6)
+    # the film: the particle and its neighbours in one row, the row slightly wavy
+    xs = np.arange(-4, 5) * d
+    x = np.stack([xs, 0.002 * np.cos(7.0 * xs)], 1)
+    x = np.concatenate([x[4:5], np.delete(x, 4, axis=0)])
+    p = np.where(np.arange(len(x)) == 1, 14e3, 0.0)  # one neighbour under pressure
+    grad = _lattice_gradient(x, p, h)
+    r = x[1] - x[0]
+    raw = 1000 * 0.01 / 1000 * fac_grad(np.linalg.norm(r), h, 2) * 14e3 * -r
+    assert np.linalg.norm(grad) <= 4.0 * np.linalg.norm(raw) * (1 + 1e-9)
+    assert np.linalg.norm(grad) >= np.linalg.norm(raw)
+
+
 # --------------------------------------------------------------------------- scenes
 
 

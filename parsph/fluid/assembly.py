@@ -693,13 +693,23 @@ def pressure_gradient_corrected(x, p, m, rho, fluid, indptr, indices, h, dim, we
     :math:`\mathbf{L}_i = \big(\sum_j V_j \nabla W_{ij} \otimes (\mathbf{x}_j - \mathbf{x}_i)
     \big)^{-1}`, :math:`V_j = m_j / \rho_j` (Bonet & Lok 1999, cited in section 2): exact
     for a linear pressure even where the support is truncated (free surface), so the
-    outermost layer, at p = 0, feels the full hydrostatic gradient. Where the matrix is
-    near singular (fewer than ``dim`` independent neighbours) the uncorrected sum is used.
+    outermost layer, at p = 0, feels the full hydrostatic gradient.
+
+    The moment matrix :math:`\mathbf{M}_i = \mathbf{L}_i^{-1}` is symmetric (the kernel
+    gradient is radial) and equals the identity for a full support, I/2 for a half space
+    and about :math:`2^{-d}` I for an orthant (a convex corner). Its eigenvalues are taken
+    as at least :math:`2^{-d}`: in a direction the neighbourhood covers less than a
+    corner's support does (a film one particle thick, a lone pair) it cannot tell the
+    gradient, and the inverse would multiply the pressure of a neighbour by an unbounded
+    factor, a force its reaction on the neighbour (the symmetric pair, eq. (37)) does not
+    balance: the thin front of slope_failure on 2 ranks gained 1.5x the energy gravity can
+    supply that way (docs/coupling.md). Exact wherever the support is at least a corner's.
     """
     n = indptr.shape[0] - 1
     out = np.zeros((n, dim))
     M = np.zeros((dim, dim))
     s = np.zeros(dim)
+    floor = 0.5 ** dim
     for i in range(n):
         if not fluid[i]:
             continue
@@ -719,19 +729,14 @@ def pressure_gradient_corrected(x, p, m, rho, fluid, indptr, indices, h, dim, we
                 s[a] += (p[j] - p[i]) * ga
                 for b in range(dim):
                     M[a, b] += ga * (x[j, b] - x[i, b])
-        tr = 0.0
+        lam, Q = np.linalg.eigh(M)
         for a in range(dim):
-            tr += M[a, a]
-        det = np.linalg.det(M)
-        if tr > 0.0 and det > 1e-3 * (tr / dim) ** dim:
-            L = np.linalg.inv(M)
-            for a in range(dim):
-                acc = 0.0
+            acc = 0.0
+            for k in range(dim):
+                c = 0.0
                 for b in range(dim):
-                    acc += L[a, b] * s[b]
-                out[i, a] = acc
-        else:
-            for a in range(dim):
-                out[i, a] = s[a]
+                    c += Q[b, k] * s[b]
+                acc += Q[a, k] * c / max(lam[k], floor)
+            out[i, a] = acc
     return out
 

@@ -423,7 +423,7 @@ class IISPH:
                 wet = (fluid == 1).astype(np.uint8)
                 corr = assembly.pressure_gradient_corrected(x, p["p"], m, rho, surface, indptr,
                                                             indices, h, dim, wet)
-                p_bnd = np.where((solid > 0) & (__import__("os").environ.get("PARSPH_NOPAIR") is None), p["p"], 0.0)
+                p_bnd = np.where(solid > 0, p["p"], 0.0)
                 corr += assembly.pressure_gradient(x, p_bnd, m, rho, surface, indptr, indices,
                                                    h, dim)
                 grad[surface == 1] = corr[surface == 1]
@@ -453,7 +453,7 @@ class IISPH:
                 # halo rows, whatever the partition
                 moving = np.where((solid > 0)[:, None], vs, 0.0)
                 contacts = wall_contact(x, vnew, surface, surface, 1 - fluid, moving, indptr,
-                                        indices, h, d, dim, mu, push)
+                                        indices, h, d, dim, mu, push, dt)
         p["v"][:n][own_fluid] = vnew[own_fluid]
         p["x"][:n][own_fluid] += dt * vnew[own_fluid]
         div = assembly.divergence(x, p["v"], m, rho, fluid, indptr, indices, h, dim)
