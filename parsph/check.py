@@ -11,6 +11,7 @@ from parsph.budget import check_budget
 from parsph.geometry import generate
 from parsph.kernel import smoothing_length, support_radius
 from parsph.materials import PHASE_FLUID, PHASE_SOLID, PHASE_WALL
+from parsph.params_probes import fields_of
 from parsph.pipeline import INFRASTRUCTURE, plan
 from parsph.scene import geometry_warnings
 
@@ -52,6 +53,21 @@ def check(comm, scene) -> str:
         f"({est['bytes_per_particle']} B per particle)"
         + (f"; this node has {est['node_memory'] / 2**30:.1f} GiB" if est["node_memory"] else ""),
     ]
+    lines += _probe_lines(scene)
     lines += [f"warning: {text}" for text in geometry_warnings(scene)]
     return "\n".join(lines)
 
+
+
+def _probe_lines(scene) -> list[str]:
+    """One line per probe: type, stations, measure, fields, interval (DIR/probes.csv)."""
+    if not scene.probes:
+        return []
+    out = ["probes (DIR/probes.csv):"]
+    for pr in scene.probes:
+        n = pr.points if pr.type == "line" else 1
+        what = "integrals" if pr.type == "box" else pr.measure
+        every = pr.every or scene.output.probe_every or scene.output.every
+        out.append(f"  {pr.name:12s} {pr.type}, {n} station{'s' * (n > 1)}, {what} over "
+                   f"{'+'.join(pr.phases)}: {', '.join(fields_of(pr, scene))}; every {every:g} s")
+    return out

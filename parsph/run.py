@@ -7,7 +7,7 @@ One step (see DESIGN.md, "One time step, as data flow")::
     check: NaN/inf, particles leaving the domain      (collective, one message)
     migrate to owners (re-partition when unbalanced), refresh halo, neighbour lists
     stage.after_refresh(ctx) for diagnostic stages    (e.g. density, eq. 33)
-    stats.csv row; frame when due; checkpoint when due
+    stats.csv row; frame when due; probes when due; checkpoint when due
     SIGTERM/SIGUSR1 seen by any rank: checkpoint on every rank, stop (exit status 4)
 """
 from __future__ import annotations
@@ -473,6 +473,7 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
     from parsph.errors import Preempted
     from parsph.io import FrameWriter, StatsWriter
     from parsph.log import Progress
+    from parsph.probes import ProbeOutput
 
     comm = comm or world()
     wall0 = time.perf_counter()
@@ -524,9 +525,11 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
         _truncate_stats(os.path.join(out, "stats.csv"), ctx.step)
     with FrameWriter(h5, comm, dim, attrs=attrs, xdmf=xdmf, mode=mode) as writer, \
             StatsWriter(os.path.join(out, "stats.csv"), stats_columns(stages),
-                        enabled=comm.rank == 0, mode=mode) as stats, _StopRequest() as stop:
+                        enabled=comm.rank == 0, mode=mode) as stats, _StopRequest() as stop, \
+            ProbeOutput(ctx) as probes:
         if ck is None:
             write_frame()
+        probes.sample_due(ctx)  # t = 0 (a restart goes on at the next sample time)
         # the energy budget of each step (stats.csv energy_bound, energy_ratio) needs the
         # kinetic and elastic energy before it: of the initial state, or the checkpoint's
         last = {"ke": kinetic_energy(ctx)[0],
@@ -561,6 +564,7 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
                 write_frame()
                 last_frame_step = ctx.step
                 frame_index += 1
+            probes.sample_due(ctx)
             row = _stats_row(ctx, dt, stages)
             g = max(float(np.linalg.norm(ctx.body_acceleration(t)))
                     for t in (ctx.time - dt, ctx.time))

@@ -19,6 +19,7 @@ from parsph import schema
 from parsph.errors import SceneError
 from parsph.materials import build_material
 from parsph.params_fluid import FluidNumerics
+from parsph.params_probes import Probe, check_probes
 from parsph.params_solid import Constraint, SolidNumerics, check_solid
 from parsph.schema import spec
 
@@ -64,6 +65,9 @@ class Output:
                                               "stats.csv's front (the farthest solid or fluid "
                                               "particle, m) is measured: the run-out direction; "
                                               "default +x")
+    probe_every: float = spec(0.0, doc="simulated seconds between the samples of "
+                              "[[probes]] (DIR/probes.csv, docs/probes.md); 0 = output.every",
+                              ge=0.0)
 
 
 @dataclass(frozen=True)
@@ -141,6 +145,7 @@ class Scene:
     bodies: tuple[Body, ...] = spec((), doc="[[bodies]] tables")
     walls: tuple[Wall, ...] = spec((), doc="[[walls]] tables")
     constraints: tuple[Constraint, ...] = spec((), doc="[[constraints]] tables (TLSPH solid)")
+    probes: tuple[Probe, ...] = spec((), doc="[[probes]] tables (docs/probes.md)")
     materials: dict = field(default_factory=dict, init=False, compare=False)
     source: str = field(default="", init=False, compare=False)
     data: dict = field(default_factory=dict, init=False, compare=False, repr=False)
@@ -256,6 +261,7 @@ def load_scene(scene: str, overrides=()) -> Scene:
     scn = _normalise(scn, source)
     _cross_check(scn, source)
     check_solid(scn, source)
+    check_probes(scn, source)
     object.__setattr__(scn, "data", _load_data(scn, source))
     return scn
 

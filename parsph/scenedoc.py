@@ -4,6 +4,7 @@ from __future__ import annotations
 from parsph import schema
 from parsph.materials import MODELS
 from parsph.params_fluid import FluidNumerics
+from parsph.params_probes import Probe
 from parsph.params_solid import Constraint, SolidNumerics
 from parsph.scene import (Body, Domain, Gravity, Loading, Output, PhaseChange, Run, SceneInfo,
                           Wall)
@@ -14,7 +15,18 @@ SECTIONS = (("[scene]", SceneInfo, "scene."), ("[domain]", Domain, "domain."),
             ("[solid]", SolidNumerics, "solid."),
             ("[fluid]", FluidNumerics, "fluid."),
             ("[phase_change]", PhaseChange, "phase_change."), ("[[bodies]]", Body, "bodies.N."),
-            ("[[walls]]", Wall, "walls.N."), ("[[constraints]]", Constraint, "constraints.N."))
+            ("[[walls]]", Wall, "walls.N."), ("[[constraints]]", Constraint, "constraints.N."),
+            ("[[probes]]", Probe, "probes.N."))
+
+#: Lines printed under a section's heading, before its table.
+NOTES = {
+    "[[probes]]": [
+        "Samples go to `DIR/probes.csv`, one tidy table with the columns",
+        "`time,probe,point,field,value` (`point`: the station index, 0 for a point or a",
+        "box; vectors per component, `v_x`), and the stations to `DIR/probes_points.csv`",
+        "(`probe,type,measure,point,s,x,y[,z]`, `s` the distance along a line). Fields,",
+        "measures and the parallel algorithm: `docs/probes.md`.", ""],
+}
 
 
 def _table(rows) -> list[str]:
@@ -31,7 +43,8 @@ def markdown() -> str:
              "Every key can be overridden with `--set KEY=VALUE` (the value is read as TOML;",
              "list entries as `bodies.0.lo`).", ""]
     for title, cls, prefix in SECTIONS:
-        lines += [f"## {title}", ""] + _table(schema.describe(cls, prefix)) + [""]
+        lines += [f"## {title}", ""] + NOTES.get(title, []) + _table(schema.describe(cls, prefix)) \
+            + [""]
     lines += ["## [materials.NAME]", "", "`model` selects the parameters a material takes.", ""]
     for name, cls in MODELS.items():
         doc = (cls.__doc__ or "").strip().splitlines()[0]

@@ -6,6 +6,8 @@
 - :func:`~parsph.io.xdmf.write_xdmf`: ``particles.xdmf`` for ParaView (rank 0 only).
 - :class:`~parsph.io.stats.StatsWriter`, :func:`~parsph.io.stats.read_stats`:
   ``stats.csv``.
+- :class:`~parsph.io.probes.ProbeWriter`, :func:`~parsph.io.probes.read_probes`:
+  ``probes.csv`` (and ``probes_points.csv``).
 - :func:`~parsph.io.plot.plot_run`: PNG pictures of frames (``parsph plot``).
 
 Names are imported lazily, so ``import parsph.io`` loads neither h5py nor matplotlib.
@@ -24,6 +26,8 @@ _EXPORTS = {
     "write_xdmf": "parsph.io.xdmf",
     "StatsWriter": "parsph.io.stats",
     "read_stats": "parsph.io.stats",
+    "ProbeWriter": "parsph.io.probes",
+    "read_probes": "parsph.io.probes",
     "plot_run": "parsph.io.plot",
 }
 
