@@ -168,8 +168,8 @@ def read_geotiff(path: str, key: str = "", source: str = "") -> Grid:
     except FileNotFoundError:
         raise SceneError(f"{where}cannot read height map '{path}': No such file or directory "
                          f"(paths are relative to the scene file)") from None
-    except (KeyError, ValueError, OSError, tifffile.TiffFileError) as exc:
-        raise SceneError(f"{where}cannot read {what}: {exc}") from None
+    except Exception as exc:  # noqa: BLE001 - any reader failure is a bad file
+        raise SceneError(f"{where}cannot read {what}: {type(exc).__name__}: {exc}") from None
     if _GEOKEYS not in tags or not ((_PIXEL_SCALE in tags and _TIEPOINT in tags)
                                     or _TRANSFORMATION in tags):
         raise SceneError(f"{where}{what} has no georeferencing (GeoKeyDirectory, "
@@ -227,7 +227,7 @@ def read_geotiff(path: str, key: str = "", source: str = "") -> Grid:
             r, c = np.argwhere(bad)[0]
             raise SceneError(f"{where}{what} has {int(bad.sum())} nodata cells (GDAL_NODATA "
                              f"{value:g}; the first at row {r}, column {c}); fill them before "
-                             f"use (gdal_fillnodata)")
+                             f"use (gdal_fillnodata.py)")
     if not np.all(np.isfinite(z)):
         raise SceneError(f"{where}{what} has NaN or infinite heights")
     x0 = x_tie + (offset - i_tie) * sx
