@@ -72,10 +72,12 @@ def test_geotiff_gives_the_particles_of_the_ascii_grid(comm, mpi_tmp_path):
         write_geotiff(tmp / "area.tif")
         write_geotiff(tmp / "point.tif", point=True)
         write_geotiff(tmp / "lzw.tif", compression="lzw")
+        for top in ("z.asc", "area.tif", "point.tif", "lzw.tif"):
+            write(str(tmp), _scene_text(top), f"{top}.toml")
     comm.Barrier()
     runs = {}
     for top in ("z.asc", "area.tif", "point.tif", "lzw.tif"):
-        scn = load_scene(write(tmp, _scene_text(top), f"{top}.toml"))
+        scn = load_scene(str(tmp / f"{top}.toml"))
         ids, x, phase = _gather(comm, generate(comm, scn))
         runs[top] = x[phase != PHASE_WALL]
     assert len(runs["z.asc"]) > 20

@@ -1,5 +1,6 @@
 """Bodies and walls from triangle meshes (STL binary/ASCII, OBJ), written by the tests."""
 import math
+import os
 import pathlib
 
 import numpy as np
@@ -55,13 +56,18 @@ file = "{file}"
 """
 
 
-def _scene(tmp_path, d=0.05, bodies=(), walls=(), name="scene.toml", overrides=()):
+def _scene(tmp_path, d=0.05, bodies=(), walls=(), name="scene.toml", comm=None):
+    """Write a scene (rank 0 only, when ``comm`` says the directory is shared) and load it."""
     text = SCENE.format(d=d)
     for n, (file, extra) in enumerate(bodies):
         text += BODY.format(name=f"b{n}", file=file, extra=extra)
     for n, (file, extra) in enumerate(walls):
         text += WALL.format(name=f"w{n}", file=file, extra=extra)
-    return load_scene(write(tmp_path, text, name), list(overrides))
+    if comm is None or comm.rank == 0:
+        write(str(tmp_path), text, name)
+    if comm is not None:
+        comm.Barrier()
+    return load_scene(os.path.join(str(tmp_path), name))
 
 
 def _export(mesh, path, file_type=None):
@@ -103,7 +109,8 @@ def test_cube_and_sphere_fill_their_volume(comm, mpi_tmp_path):
         _export(ball, tmp / "ball.stl")
     comm.Barrier()
     d = 0.05
-    scn = _scene(tmp, d, bodies=[("cube.stl", ""), ("ball.stl", 'translate = [0.0, 0.0, 0.0]')])
+    scn = _scene(tmp, d, bodies=[("cube.stl", ""), ("ball.stl", 'translate = [0.0, 0.0, 0.0]')],
+                 comm=comm)
     f = _gather(comm, generate(comm, scn))
     n_cube = int((f["body"] == 0).sum())
     n_ball = int((f["body"] == 1).sum())
@@ -131,7 +138,7 @@ def test_stl_binary_ascii_and_obj_give_the_same_particles(comm, mpi_tmp_path):
     comm.Barrier()
     runs = []
     for file in ("b.stl", "a.stl", "o.obj"):
-        scn = _scene(tmp, 0.05, bodies=[(file, "")], name=f"{file}.toml")
+        scn = _scene(tmp, 0.05, bodies=[(file, "")], name=f"{file}.toml", comm=comm)
         runs.append(_gather(comm, generate(comm, scn)))
     assert len(runs[0]["id"]) > 1000
     for other in runs[1:]:
@@ -149,7 +156,7 @@ def test_scale_rotate_translate_place_the_mesh(comm, mpi_tmp_path):
         _export(brick, tmp / "brick.stl")
     comm.Barrier()
     extra = "scale = 0.01\nrotate = [0.0, 0.0, 90.0]\ntranslate = [0.5, 0.4, 0.5]"
-    f = _gather(comm, generate(comm, _scene(tmp, 0.05, bodies=[("brick.stl", extra)])))
+    f = _gather(comm, generate(comm, _scene(tmp, 0.05, bodies=[("brick.stl", extra)], comm=comm)))
     x = f["x"]
     assert len(x) == 4 * 2 * 8
     assert x.min(axis=0) == pytest.approx([0.325, 0.425, 0.525])
@@ -166,7 +173,7 @@ def test_mesh_wall_layers_inside_and_outside(comm, mpi_tmp_path):
     comm.Barrier()
     d, n = 0.1, 10
     scn = _scene(tmp, d, walls=[("cube.stl", 'fill = "inside"'),
-                                ("cube.stl", 'fill = "outside"')])
+                                ("cube.stl", 'fill = "outside"')], comm=comm)
     f = _gather(comm, generate(comm, scn))
     assert np.all(f["phase"] == PHASE_WALL)
     inside, outside = f["x"][f["body"] == 0], f["x"][f["body"] == 1]
@@ -193,7 +200,7 @@ def test_estimate_samples_large_mesh_lattices(comm, mpi_tmp_path, monkeypatch):
         _export(ball, tmp / "ball.stl")
     comm.Barrier()
     for kind in ("bodies", "walls"):
-        scn = _scene(tmp, 0.04, **{kind: [("ball.stl", "")]})
+        scn = _scene(tmp, 0.04, comm=comm, name=f"{kind}.toml", **{kind: [("ball.stl", "")]})
         n = global_sum(comm, len(generate(comm, scn)["id"]))
         monkeypatch.setattr(geometry, "_MESH_COLUMNS", 256)
         est = estimate_count(scn)
@@ -251,7 +258,8 @@ def test_mesh_particles_independent_of_rank_count(comm, mpi_tmp_path):
     comm.Barrier()
     scn = _scene(tmp, 0.05, bodies=[("ball.stl", "")],
                  walls=[("cube.stl", 'fill = "outside"\ntranslate = [0.0, 0.0, 0.0]'),
-                        ("ball.stl", 'fill = "inside"\ntranslate = [0.0, 0.0, -0.4]\nlayers = 2')])
+                        ("ball.stl", 'fill = "inside"\ntranslate = [0.0, 0.0, -0.4]\nlayers = 2')],
+                 comm=comm)
     one = comm.Split(0 if comm.rank == 0 else MPI.UNDEFINED, comm.rank)
     serial = _gather(one, generate(one, scn)) if comm.rank == 0 else None
     local = generate(comm, scn)
@@ -261,3 +269,88 @@ def test_mesh_particles_independent_of_rank_count(comm, mpi_tmp_path):
         for k in ("id", "x", "body"):
             assert np.array_equal(serial[k], parallel[k])
         one.Free()
+
+
+BOULDER = """
+[scene]
+name = "boulder"
+description = "an elastic boulder from an STL hitting a ramp from an OBJ, both in mm"
+
+[domain]
+dim = 3
+particle_size = 0.03
+lo = [-0.2, -0.2, -0.2]
+hi = [1.2, 0.6, 0.8]
+
+[run]
+end_time = 1.0
+max_steps = 50
+
+[output]
+every = 0.5
+progress = false
+
+[solid]
+hourglass = 1.0
+
+[materials.granite]
+model = "hencky"
+density = 2700.0
+young_modulus = 2.0e6
+poisson_ratio = 0.3
+
+[[bodies]]
+name = "boulder"
+material = "granite"
+shape = "mesh"
+file = "boulder.stl"
+scale = 0.001
+rotate = [0.0, 20.0, 0.0]
+translate = [0.3, 0.2, 0.32]
+velocity = [0.0, 0.0, -2.0]
+
+[[walls]]
+name = "ramp"
+shape = "mesh"
+file = "ramp.obj"
+scale = 0.001
+fill = "inside"
+"""
+
+
+def _ramp_mm():
+    """A wedge 1000 x 400 mm, 300 mm high at x = 0 and 50 mm at x = 1000."""
+    v = np.array([[0, 0, 0], [1000, 0, 0], [1000, 400, 0], [0, 400, 0], [0, 0, 300],
+                  [1000, 0, 50], [1000, 400, 50], [0, 400, 300]], dtype=float)
+    f = [[0, 2, 1], [0, 3, 2], [4, 5, 6], [4, 6, 7], [0, 1, 5], [0, 5, 4], [3, 7, 6],
+         [3, 6, 2], [0, 4, 7], [0, 7, 3], [1, 2, 6], [1, 6, 5]]
+    return trimesh.Trimesh(v, f)
+
+
+@pytest.mark.mpi(min_size=2)
+def test_user_scene_mesh_boulder_on_mesh_ramp_one_vs_two_ranks(comm, mpi_tmp_path):
+    """A user's scene: CAD files in mm, loaded on rank 0 as the CLI does; the boulder
+    reaches the ramp, and 1 and 2 ranks agree by global id."""
+    from decomposition.comm import on_root
+    from tests.scenes import last_frame, run_on_one_and_two
+
+    tmp = _shared(mpi_tmp_path)
+    if comm.rank == 0:
+        rock = trimesh.creation.icosphere(subdivisions=2, radius=100.0)
+        rock.apply_scale((1.0, 0.8, 0.7))
+        _export(rock, tmp / "boulder.stl")
+        _export(_ramp_mm(), tmp / "ramp.obj")
+        write(str(tmp), BOULDER, "boulder.toml")
+    comm.Barrier()
+    scene = on_root(comm, load_scene, str(tmp / "boulder.toml"))
+    one, two = run_on_one_and_two(comm, scene, str(tmp))
+    if comm.rank == 0:
+        a, b = last_frame(one), last_frame(two)
+        assert np.array_equal(a["id"], b["id"])
+        assert set(np.unique(b["rank"])) == {0, 1}
+        solid = a["phase"] != PHASE_WALL
+        assert 60 < solid.sum() < 120 and (~solid).sum() > 1000
+        assert np.abs(a["x"] - b["x"]).max() < 1e-9
+        assert np.abs(a["v"] - b["v"]).max() < 1e-7
+        # it hit the ramp and is bouncing off (with the ramp 0.15 m lower: -2.2 m/s)
+        assert a["v"][solid, 2].mean() > 0.0
