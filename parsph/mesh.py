@@ -11,7 +11,7 @@ and points at ``origin + (i + 1/2, j + 1/2, k + 1/2) d``; all points of a column
 ``(i, j)`` share one vertical ray, cast upward from below the mesh with trimesh's ray
 tests (``trimesh.ray.ray_triangle``, an rtree of the triangles' boxes). A point is
 inside when an odd number of the ray's crossings lie at or below it. One ray serves
-``nz`` points: 1e6 lattice points of a 5,000-triangle sphere take 1e4 rays, 0.5 s
+``nz`` points: 1e6 lattice points of a 5,120-triangle sphere take 1e4 rays, 1.3 s in all
 (trimesh's own ``contains``, one ray per point, took 21 s and 2.9 GB for 1e5 points).
 
 The ray of column ``(i, j)`` is shifted by ``1e-6 d`` in a fixed direction, so that it
@@ -70,12 +70,6 @@ class Mesh:
     @property
     def hi(self) -> np.ndarray:
         return self.vertices.max(axis=0)
-
-    @property
-    def volume(self) -> float:
-        """Enclosed volume (m^3), by the divergence theorem (sign-free)."""
-        a, b, c = (self.vertices[self.faces[:, n]] for n in range(3))
-        return abs(float(np.einsum("ij,ij->", a, np.cross(b, c)))) / 6.0
 
 
 def rotation(degrees) -> np.ndarray:
@@ -167,6 +161,7 @@ class MeshFill:
         self.d = float(d)
         self.layers = int(layers)
         self.fill = fill
+        self._triangles = None  # the non-degenerate triangles and their rtree, built on first use
         self._tree = None
 
     # -- rays
@@ -188,7 +183,8 @@ class MeshFill:
         up = np.tile((0.0, 0.0, 1.0), (len(ci), 1))
         _, ray, loc = ray_triangle_id(self._triangles, rays, up, tree=self._tree,
                                       multiple_hits=True)
-        return np.asarray(ray, dtype=np.int64), np.asarray(loc, dtype=np.float64).reshape(-1, 3)[:, 2]
+        z_hit = np.asarray(loc, dtype=np.float64).reshape(-1, 3)[:, 2]
+        return np.asarray(ray, dtype=np.int64), z_hit
 
     def crossings(self, ci, cj):
         """Per column (ci, cj): the sorted lattice heights ``kk`` of its crossings.
