@@ -16,6 +16,7 @@ import math
 
 import numpy as np
 
+from decomposition.comm import raise_if_any
 from decomposition.numbering import global_offset
 from parsph.errors import SceneError
 from parsph.heightmap import surface
@@ -177,7 +178,37 @@ def _lattice(scene: Scene, item, is_wall: bool) -> _Lattice:
             return keep
 
         return _Lattice((x0, y0, zb), _counts((x0, y0, zb), (x1, y1, ztop), d), inside)
+    if shape == "mesh":
+        return _mesh_lattice(scene, item, is_wall)
     raise SceneError(f"{scene.source}: unknown shape '{shape}' for '{item.name}'")
+
+
+#: Mesh lattices with at most this many columns are counted exactly; larger ones from a
+#: sample (see :meth:`parsph.mesh.MeshFill.count`): about a second of rays either way.
+_MESH_COLUMNS = 1 << 14
+
+
+def _mesh_lattice(scene: Scene, item, is_wall: bool) -> _Lattice:
+    """A mesh's lattice: its bounding box on the domain's lattice (``domain.lo + (k + 1/2)
+    d``), grown by the wall layers for an ``outside`` wall; filled by columns."""
+    from parsph.mesh import MeshFill
+
+    d = scene.domain.particle_size
+    mesh = scene.data[f"mesh:{item.name}"]
+    layers = wall_layers(scene, item) if is_wall else 0
+    grow = layers if is_wall and item.fill == "outside" else 0
+    dlo = np.array(scene.domain.lo, dtype=float)
+    origin = dlo + (np.floor((mesh.lo - dlo) / d + 1e-9) - grow) * d
+    counts = np.ceil((mesh.hi - origin) / d - 1e-9).astype(np.int64) + grow
+    fill = MeshFill(mesh, origin, d, layers, item.fill if is_wall else "inside")
+
+    def inside(x):
+        return fill.inside(np.rint((x - origin) / d - 0.5).astype(np.int64))
+
+    def exact_count():
+        return fill.count(counts, _MESH_COLUMNS, np.random.default_rng(12345))
+
+    return _Lattice(origin, counts, inside, exact_count)
 
 
 def estimate_count(scene: Scene) -> int:
@@ -198,13 +229,17 @@ def _generate_item(comm, scene: Scene, lat: _Lattice, first_id: int):
     total = lat.total
     start = total * comm.rank // comm.size
     stop = total * (comm.rank + 1) // comm.size
-    parts = []
-    for a in range(start, stop, _CHUNK):
-        idx = np.arange(a, min(a + _CHUNK, stop), dtype=np.int64)
-        x = lat.points(idx, d)
-        if lat.inside is not None:
-            x = x[lat.inside(x)]
-        parts.append(x)
+    parts, error = [], None
+    try:  # an inside test that fails on one rank (a mesh's rays) fails on all
+        for a in range(start, stop, _CHUNK):
+            idx = np.arange(a, min(a + _CHUNK, stop), dtype=np.int64)
+            x = lat.points(idx, d)
+            if lat.inside is not None:
+                x = x[lat.inside(x)]
+            parts.append(x)
+    except SceneError as exc:
+        error = exc
+    raise_if_any(comm, error)
     x = np.concatenate(parts) if parts else np.zeros((0, scene.domain.dim))
     offset, count = global_offset(comm, len(x))
     ids = first_id + offset + np.arange(len(x), dtype=np.int64)

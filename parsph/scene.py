@@ -100,32 +100,48 @@ class PhaseChange:
 class Body:
     name: str = spec(doc="body name")
     material: str = spec(doc="a key of [materials]")
-    shape: str = spec(doc="box | polygon (2D) | extruded_polygon (3D) | heightmap (3D)",
-                      choices=("box", "polygon", "extruded_polygon", "heightmap"))
+    shape: str = spec(doc="box | polygon (2D) | extruded_polygon (3D) | heightmap (3D) | "
+                      "mesh (3D, docs/geometry.md)",
+                      choices=("box", "polygon", "extruded_polygon", "heightmap", "mesh"))
     lo: tuple[float, ...] = spec((), doc="box: lower corner (m)")
     hi: tuple[float, ...] = spec((), doc="box: upper corner (m)")
     vertices: tuple[tuple[float, ...], ...] = spec((), doc="polygon: [[x, y], ...] (m); "
                                                   "extruded_polygon: [[x, z], ...]")
     extent: tuple[float, ...] = spec((), doc="extruded_polygon: [y0, y1] (m)")
-    top: str = spec("", doc="heightmap: ESRI ASCII grid of the top surface z(x, y)")
+    top: str = spec("", doc="heightmap: grid of the top surface z(x, y): ESRI ASCII or "
+                    "GeoTIFF (docs/geometry.md)")
     bottom: float = spec(-math.inf, doc="heightmap: z of the bottom (m)")
     depth: float = spec(0.0, doc="heightmap: thickness below the top surface (m), 0 = to bottom",
                         ge=0.0)
     below: float = spec(0.0, doc="heightmap: the body starts this far below the surface (m): "
                         "layers under layers (a layer = below .. below + depth)", ge=0.0)
+    file: str = spec("", doc="mesh: STL (binary or ASCII) or OBJ file of a closed surface")
+    scale: float = spec(1.0, doc="mesh: factor from file units to m (0.001 for mm)", gt=0.0)
+    rotate: tuple[float, ...] = spec((), doc="mesh: [ax, ay, az] degrees about x, then y, "
+                                     "then z, after scale")
+    translate: tuple[float, ...] = spec((), doc="mesh: shift (m), after rotate")
     velocity: tuple[float, ...] = spec((), doc="initial velocity (m/s)")
 
 
 @dataclass(frozen=True)
 class Wall:
     name: str = spec(doc="wall name")
-    shape: str = spec(doc="tank (layers around an inner box) | box (filled) | polygon (2D)",
-                      choices=("tank", "box", "polygon"))
+    shape: str = spec(doc="tank (layers around an inner box) | box (filled) | polygon (2D) | "
+                      "mesh (3D: layers along a closed surface, docs/geometry.md)",
+                      choices=("tank", "box", "polygon", "mesh"))
     lo: tuple[float, ...] = spec((), doc="tank: inner lower corner; box: lower corner (m)")
     hi: tuple[float, ...] = spec((), doc="tank: inner upper corner; box: upper corner (m)")
     sides: tuple[str, ...] = spec((), doc="tank: which sides have a wall (left, right, front, "
                                   "back, bottom, top)")
     vertices: tuple[tuple[float, ...], ...] = spec((), doc="polygon: [[x, y], ...] (m)")
+    file: str = spec("", doc="mesh: STL (binary or ASCII) or OBJ file of a closed surface")
+    scale: float = spec(1.0, doc="mesh: factor from file units to m (0.001 for mm)", gt=0.0)
+    rotate: tuple[float, ...] = spec((), doc="mesh: [ax, ay, az] degrees about x, then y, "
+                                     "then z, after scale")
+    translate: tuple[float, ...] = spec((), doc="mesh: shift (m), after rotate")
+    fill: str = spec("inside", doc="mesh: the layers lie inside the surface (the mesh is "
+                     "the solid: an obstacle, a terrain block) | outside (the mesh is the flow "
+                     "region, as a tank's inner box)", choices=("inside", "outside"))
     layers: int = spec(0, doc="layers of wall particles (0 = enough for the kernel support)",
                        ge=0)
     slip: str = spec("no_slip", doc="no_slip | free_slip", choices=("no_slip", "free_slip"))
@@ -417,6 +433,14 @@ def _check_shape(source, key, shape, item, dim, lo, hi):
                      f"got {list(v)}")
         if shape == "extruded_polygon" and (len(item.extent) != 2 or item.extent[1] <= item.extent[0]):
             _err(source, f"{key}.extent", "needs [y0, y1] with y1 > y0")
+    elif shape == "mesh":
+        if dim != 3:
+            _err(source, f"{key}.shape", "a mesh is for 3D scenes (domain.dim = 2); draw the "
+                 "section of a 2D scene as a polygon (shape = \"polygon\")")
+        if not item.file:
+            _err(source, f"{key}.file", "a mesh needs the path of its STL or OBJ file")
+        _check_vec(source, f"{key}.rotate", item.rotate, 3, required=False)
+        _check_vec(source, f"{key}.translate", item.translate, 3, required=False)
     elif shape == "heightmap":
         if dim != 3:
             _err(source, f"{key}.shape", "a heightmap body is for 3D scenes")
@@ -426,7 +450,7 @@ def _check_shape(source, key, shape, item, dim, lo, hi):
 
 def _load_data(scn: Scene, source: str) -> dict:
     """Read the data files a scene refers to (height maps), relative to the scene file."""
-    from parsph.heightmap import read_ascii_grid
+    from parsph.heightmap import read_grid
 
     from parsph.loading import read_record
 
@@ -439,5 +463,30 @@ def _load_data(scn: Scene, source: str) -> dict:
     for i, body in enumerate(scn.bodies):
         if body.shape == "heightmap":
             path = body.top if os.path.isabs(body.top) else os.path.join(base, body.top)
-            data[body.top] = read_ascii_grid(path, key=f"bodies[{i}].top", source=source)
+            data[body.top] = read_grid(path, key=f"bodies[{i}].top", source=source)
+    for group, items in (("bodies", scn.bodies), ("walls", scn.walls)):
+        for i, item in enumerate(items):
+            if item.shape == "mesh":
+                data[f"mesh:{item.name}"] = _load_mesh(scn, f"{group}[{i}]", item, base, source)
     return data
+
+
+def _load_mesh(scn: Scene, key: str, item, base: str, source: str):
+    """Read a mesh (rank 0), place it, and check that its particles fall in the domain."""
+    from parsph.geometry import wall_layers
+    from parsph.mesh import read_mesh
+
+    path = item.file if os.path.isabs(item.file) else os.path.join(base, item.file)
+    mesh = read_mesh(path, f"{key}.file", source, item.scale, item.rotate, item.translate)
+    grow = 0.0
+    if getattr(item, "fill", "inside") == "outside":
+        grow = wall_layers(scn, item) * scn.domain.particle_size
+    lo, hi = mesh.lo - grow, mesh.hi + grow
+    dlo, dhi = np.array(scn.domain.lo), np.array(scn.domain.hi)
+    if np.any(lo < dlo) or np.any(hi > dhi):
+        span = f"{np.round(lo, 6).tolist()}..{np.round(hi, 6).tolist()}"
+        _err(source, f"{key}.file", f"mesh '{path}' spans {span} m after scale, rotate and "
+             f"translate{' and its outside layers' if grow else ''}, not inside the domain "
+             f"{list(scn.domain.lo)}..{list(scn.domain.hi)}; place it with {key}.scale, "
+             f"{key}.translate or enlarge domain.lo/domain.hi")
+    return mesh

@@ -29,14 +29,19 @@ echo "$PETSC_PY" > "$SITE/debian-petsc4py.pth"
 CONSTRAINTS="$VENV/constraints.txt"
 printf '%s\n' numpy==1.24.2 numba==0.56.4 llvmlite==0.39.1 scipy==1.10.1 mpi4py==3.1.4 \
     h5py==3.7.0 petsc4py==3.18.5 > "$CONSTRAINTS"
+# From PyPI (wheels that need only numpy): meshes and their ray tests (trimesh, rtree), GeoTIFF
+# height maps (tifffile, imagecodecs for LZW-compressed files). Keep in step with pyproject.toml.
+PIP_PKGS="trimesh>=4 rtree>=1 tifffile>=2023.1 imagecodecs>=2023.1"
 STAMP="$VENV/.parsph-installed"
 if [ ! -f "$STAMP" ] || [ pyproject.toml -nt "$STAMP" ]; then
+    "$VENV/bin/pip" install -q -c "$CONSTRAINTS" $PIP_PKGS
     "$VENV/bin/pip" install -q --no-build-isolation --no-deps -c "$CONSTRAINTS" -e .
     touch "$STAMP"
 fi
 "$VENV/bin/python" - <<'PY'
 import sys
 import h5py, mpi4py, numba, numpy, petsc4py
+import imagecodecs, rtree, tifffile, trimesh  # geometry from files
 
 print(f"setup: ok (python {sys.version.split()[0]}, numpy {numpy.__version__}, numba {numba.__version__}, "
       f"mpi4py {mpi4py.__version__}, petsc4py {petsc4py.__version__}, h5py {h5py.__version__})")
