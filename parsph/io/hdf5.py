@@ -14,6 +14,16 @@ Layout of ``particles.h5``::
         rank      (N,)      int32    rank that owned the row when it was written
         <extra>   (N, ...)           any further field handed to ``write_frame``
 
+In 2D, each vector and tensor field also gets a 3-component view for ParaView, which
+reads vectors of 3 and tensors of 9 components only::
+
+    /frames/NNNNNN/xdmf/v   (N, 3)    HDF5 virtual dataset: columns 0, 1 map ``v``,
+                                      column 2 is the fill value 0 (no data copied)
+    /frames/NNNNNN/xdmf/<f> (N, 3, 3) the same for an (N, 2, 2) field
+
+The views hold no data of their own; :func:`read_frame` skips them and
+``particles.xdmf`` points at them (:mod:`parsph.io.xdmf`).
+
 N is the global number of owned particles at that step. Rank r writes its owned rows at
 rows ``offset … offset + n_r − 1`` where ``offset`` comes from
 :func:`decomposition.numbering.global_offset`, so rows are ordered by rank, then by local
@@ -40,6 +50,8 @@ from decomposition.numbering import global_offset
 from parsph.errors import ParsphError
 
 FILE_NAME = "particles.h5"
+#: Subgroup of a frame holding the 3-component views of its 2D vector and tensor fields.
+VIEWS = "xdmf"
 
 #: Required datasets of every frame: name -> (dtype, trailing shape; "dim" = (dim,)).
 SCHEMA: dict[str, tuple[np.dtype, str]] = {
@@ -83,12 +95,16 @@ class FrameInfo:
         Global number of rows.
     fields : dict
         Dataset name -> ``(dtype, shape)`` with the global shape.
+    views : dict
+        Field name -> ``(dtype, shape)`` of its 3-component view ``xdmf/<name>`` (2D
+        vector and tensor fields; empty in 3D).
     """
 
     step: int
     time: float
     n: int
     fields: dict[str, tuple[np.dtype, tuple[int, ...]]] = field(default_factory=dict)
+    views: dict[str, tuple[np.dtype, tuple[int, ...]]] = field(default_factory=dict)
 
 
 def _attr_value(key, value):
@@ -332,6 +348,10 @@ class FrameWriter:
             info.fields[key] = (a.dtype, shape)
             if total > 0:
                 self._write_rows(dset, a, offset, n)
+        if self.dim == 2 and total > 0:
+            for key, (dtype, shape) in info.fields.items():
+                if shape[1:] in ((2,), (2, 2)):
+                    info.views[key] = _write_view(grp, key, dtype, shape)
         f.flush()
         self.frames = [fr for fr in self.frames if fr.step != info.step] + [info]
         self.frames.sort(key=lambda fr: fr.step)
@@ -367,6 +387,22 @@ class FrameWriter:
         dset.id.write(mspace, fspace, a, dxpl=self._dxpl)
 
 
+def _write_view(grp, name: str, dtype, shape) -> tuple[np.dtype, tuple[int, ...]]:
+    """Collective (metadata only): the 3-component view ``grp/xdmf/name`` of a 2D field.
+
+    An HDF5 virtual dataset of shape (N, 3) (or (N, 3, 3)) whose first 2 (2 x 2) entries
+    map the dataset ``grp/name`` of shape (N, 2) (or (N, 2, 2)) and whose others read as
+    the fill value 0. The source file is named ``"."`` (this file), so the view survives
+    moving or renaming the file. Returns the view's ``(dtype, shape)``.
+    """
+    padded = (shape[0],) + (3,) * (len(shape) - 1)
+    layout = h5py.VirtualLayout(shape=padded, dtype=dtype)
+    source = h5py.VirtualSource(".", f"{grp.name}/{name}", shape=shape, dtype=dtype)
+    layout[(slice(None),) + (slice(0, 2),) * (len(shape) - 1)] = source
+    grp.require_group(VIEWS).create_virtual_dataset(name, layout, fillvalue=0)
+    return np.dtype(dtype), padded
+
+
 # -- reading (serial, any rank) --------------------------------------------------------
 
 def _index(f) -> list[FrameInfo]:
@@ -384,6 +420,11 @@ def _index(f) -> list[FrameInfo]:
         for name, d in g.items():
             if isinstance(d, h5py.Dataset):
                 info.fields[name] = (d.dtype, tuple(d.shape))
+        views = g.get(VIEWS)
+        if isinstance(views, h5py.Group):
+            for name, d in views.items():
+                if isinstance(d, h5py.Dataset) and name in info.fields:
+                    info.views[name] = (d.dtype, tuple(d.shape))
         if "id" in info.fields:
             info.n = info.fields["id"][1][0]
         elif info.fields:
