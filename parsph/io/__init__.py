@@ -7,6 +7,8 @@
 - :class:`~parsph.io.stats.StatsWriter`, :func:`~parsph.io.stats.read_stats`:
   ``stats.csv``.
 - :func:`~parsph.io.plot.plot_run`: PNG pictures of frames (``parsph plot``).
+- :func:`~parsph.io.series.plot_series`: stats.csv and probes.csv over time in one PNG
+  (``parsph plot --series``).
 
 Names are imported lazily, so ``import parsph.io`` loads neither h5py nor matplotlib.
 """
@@ -25,6 +27,7 @@ _EXPORTS = {
     "StatsWriter": "parsph.io.stats",
     "read_stats": "parsph.io.stats",
     "plot_run": "parsph.io.plot",
+    "plot_series": "parsph.io.series",
 }
 
 __all__ = sorted(_EXPORTS)
