@@ -175,7 +175,12 @@ def _check_xdmf(xdmf_path, dim, n_frames):
     assert len(grids) == n_frames
     base = os.path.dirname(xdmf_path)
     for grid in grids:
-        assert grid.find("Topology").get("TopologyType") == "Polyvertex"
+        topology = grid.find("Topology")
+        assert topology.get("TopologyType") == "Polyvertex"
+        fname, ref = topology.find("DataItem").text.strip().split(":", 1)
+        with h5py.File(os.path.join(base, fname), "r") as f:  # explicit connectivity
+            n = int(topology.get("NumberOfElements"))
+            assert np.array_equal(f[ref][()], np.arange(n))
         assert grid.find("Geometry").get("GeometryType") == ("XY" if dim == 2 else "XYZ")
         float(grid.find("Time").get("Value"))
         names = {a.get("Name"): a.get("AttributeType") for a in grid.findall("Attribute")}

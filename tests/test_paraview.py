@@ -3,8 +3,9 @@
 A short 2D run (dam_break, IISPH) and a short 3D run (triaxial_light, TLSPH) are written
 on the session's ranks (1 or 2: the suite runs under both), then rank 0 opens each with
 Debian's ``pvbatch`` through ParaView's default reader for ``.xdmf`` (Xdmf3ReaderS) and
-the older XDMF reader, and compares every time step, the number of points, the
-positions and the three velocity components with ``particles.h5``, particle by id.
+the older XDMF reader, and compares every time step, the number of points and of
+vertex cells (what ParaView draws), the positions and the three velocity components with
+``particles.h5``, particle by id.
 Skipped only where ``pvbatch`` is not installed (scripts/setup.sh installs it).
 """
 import os
@@ -46,6 +47,7 @@ for label, make in (("default", lambda: OpenDataFile(xdmf)),
         pd = data.GetPointData()
         arrays = {pd.GetArrayName(i): vtk_to_numpy(pd.GetArray(i)) for i in range(pd.GetNumberOfArrays())}
         arrays["points"] = vtk_to_numpy(data.GetPoints().GetData())
+        arrays["n_cells"] = np.array(data.GetNumberOfCells())  # vertex cells: what is drawn
         vectors = pd.GetVectors()
         arrays["vectors_name"] = np.array(vectors.GetName() if vectors else "")
         np.savez(f"{out}/{label}_{k}.npz", **arrays)
@@ -109,6 +111,7 @@ def test_paraview_reads_steps_points_and_velocity(comm, mpi_tmp_path, dim):
             where = f"{label} reader, step {step}"
             n = len(h5["id"])
             assert len(pv["points"]) == n and len(pv["v"]) == n, where
+            assert int(pv["n_cells"]) == n, where
             assert set(h5) - {"x"} <= set(pv), (where, sorted(pv))
             assert str(pv["vectors_name"]) == "v", where
             o_h5, o_pv = np.argsort(h5["id"]), np.argsort(pv["id"])

@@ -22,7 +22,10 @@ reads vectors of 3 and tensors of 9 components only::
     /frames/NNNNNN/xdmf/<f> (N, 3, 3) the same for an (N, 2, 2) field
 
 The views hold no data of their own; :func:`read_frame` skips them and
-``particles.xdmf`` points at them (:mod:`parsph.io.xdmf`).
+``particles.xdmf`` points at them (:mod:`parsph.io.xdmf`). ParaView's Xdmf3 reader makes
+the vertex cells it draws only from an explicit connectivity, so the file also holds,
+once per distinct particle count N, ``/xdmf/vertices_N`` = 0 … N − 1 (int32), shared by
+the frames of that count.
 
 N is the global number of owned particles at that step. Rank r writes its owned rows at
 rows ``offset … offset + n_r − 1`` where ``offset`` comes from
@@ -52,6 +55,8 @@ from parsph.errors import ParsphError
 FILE_NAME = "particles.h5"
 #: Subgroup of a frame holding the 3-component views of its 2D vector and tensor fields.
 VIEWS = "xdmf"
+#: Root datasets ``xdmf/vertices_N``: the polyvertex connectivity 0 … N − 1 of N particles.
+VERTICES = "xdmf/vertices"
 
 #: Required datasets of every frame: name -> (dtype, trailing shape; "dim" = (dim,)).
 SCHEMA: dict[str, tuple[np.dtype, str]] = {
@@ -98,6 +103,9 @@ class FrameInfo:
     views : dict
         Field name -> ``(dtype, shape)`` of its 3-component view ``xdmf/<name>`` (2D
         vector and tensor fields; empty in 3D).
+    vertices : tuple or None
+        ``(dataset path, dtype)`` of the frame's polyvertex connectivity
+        (``xdmf/vertices_N``), None if the file has none (written before it existed).
     """
 
     step: int
@@ -105,6 +113,7 @@ class FrameInfo:
     n: int
     fields: dict[str, tuple[np.dtype, tuple[int, ...]]] = field(default_factory=dict)
     views: dict[str, tuple[np.dtype, tuple[int, ...]]] = field(default_factory=dict)
+    vertices: tuple[str, np.dtype] | None = None
 
 
 def _attr_value(key, value):
@@ -352,6 +361,8 @@ class FrameWriter:
             for key, (dtype, shape) in info.fields.items():
                 if shape[1:] in ((2,), (2, 2)):
                     info.views[key] = _write_view(grp, key, dtype, shape)
+        if total > 0:
+            info.vertices = self._vertices(total, offset, n)
         f.flush()
         self.frames = [fr for fr in self.frames if fr.step != info.step] + [info]
         self.frames.sort(key=lambda fr: fr.step)
@@ -365,6 +376,16 @@ class FrameWriter:
                 except Exception as exc:  # noqa: BLE001 - agreed on by every rank below
                     error = exc
             raise_if_any(self.comm, error)
+
+    def _vertices(self, total: int, offset: int, n: int) -> tuple[str, np.dtype]:
+        """Collective: ``xdmf/vertices_<total>`` (0 … total − 1), written if not there."""
+        name = f"{VERTICES}_{total}"
+        dtype = np.dtype(np.int32 if total < 2**31 else np.int64)
+        if name in self._file:
+            return name, self._file[name].dtype
+        dset = self._file.create_dataset(name, shape=(total,), dtype=dtype)
+        self._write_rows(dset, np.arange(offset, offset + n, dtype=dtype), offset, n)
+        return name, dtype
 
     def _write_rows(self, dset, a: np.ndarray, offset: int, n: int) -> None:
         """Collective write of rows ``offset … offset + n − 1`` (n may be 0)."""
@@ -429,6 +450,9 @@ def _index(f) -> list[FrameInfo]:
             info.n = info.fields["id"][1][0]
         elif info.fields:
             info.n = next(iter(info.fields.values()))[1][0]
+        vertices = f.get(f"{VERTICES}_{info.n}")
+        if isinstance(vertices, h5py.Dataset) and vertices.shape == (info.n,):
+            info.vertices = (vertices.name.lstrip("/"), vertices.dtype)
         frames.append(info)
     frames.sort(key=lambda fr: fr.step)
     return frames

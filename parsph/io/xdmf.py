@@ -22,6 +22,10 @@ attribute of 3 components and a Tensor of 9 only, and it cannot read computed it
 - Any other shape ((N, 4), or a 2D field of a file written before the views) is a
   ``Matrix`` attribute: an array of as many components as a row holds.
 
+The ``Polyvertex`` topology of a frame of N particles points at ``xdmf/vertices_N``
+(0 … N − 1): ParaView's Xdmf3 readers build the vertex cells they draw only from an
+explicit connectivity (without it the points are there but nothing is drawn).
+
 Frames with no particle are left out (a grid of zero points stops some readers).
 """
 from __future__ import annotations
@@ -106,9 +110,12 @@ def build_xdmf(frames: list[FrameInfo], h5_ref: str, dim: int) -> ET.Element:
         group = frame_name(fr.step)
         grid = ET.SubElement(series, "Grid", {"Name": f"step_{fr.step:06d}", "GridType": "Uniform"})
         ET.SubElement(grid, "Time", {"Value": repr(float(fr.time))})
-        ET.SubElement(grid, "Topology", {
+        topology = ET.SubElement(grid, "Topology", {
             "TopologyType": "Polyvertex", "NumberOfElements": str(fr.n), "NodesPerElement": "1",
         })
+        if fr.vertices is not None:  # without it, the Xdmf3 readers make no cell to draw
+            path, vdtype = fr.vertices
+            _hdf_item(topology, f"{h5_ref}:/{path}", vdtype, (fr.n,))
         geometry = ET.SubElement(grid, "Geometry", {"GeometryType": "XY" if dim == 2 else "XYZ"})
         xdtype, xshape = fr.fields["x"]
         _hdf_item(geometry, f"{h5_ref}:/{group}/x", xdtype, xshape)
