@@ -41,8 +41,9 @@ FILE_NAME = "checkpoint.h5"
 
 
 def physics_hash(scene) -> str:
-    """A hash of the scene keys a restart must not change (all but ``run``/``output``)."""
-    skip = {"run", "output", "source", "data"}
+    """A hash of the scene keys a restart must not change (all but ``run``/``output``;
+    ``study`` is no physics either)."""
+    skip = {"run", "output", "study", "source", "data"}
     parts = [f"{f.name}={getattr(scene, f.name)!r}" for f in dataclasses.fields(scene)
              if f.name not in skip]
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:16]

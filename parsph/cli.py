@@ -64,7 +64,8 @@ def _parser() -> _Parser:
     st.add_argument("scene", help="built-in scene name or TOML file with a known answer")
     st.add_argument("--out", required=True, help="directory for study.csv, study.png, runs/")
     st.add_argument("--vary", nargs="+", default=[], metavar="NAME=V1,V2",
-                    help="particle_size=..., cfl=..., ksp_rtol=... or any dotted scene key")
+                    help="particle_size=..., cfl=..., ksp_rtol=... or any dotted scene key "
+                    "(default: the scene's [study] particle_sizes)")
     st.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     return p
 
@@ -72,11 +73,7 @@ def _parser() -> _Parser:
 def cmd_study(comm, args, petsc) -> int:
     from parsph.study import convergence_order, parse_vary, study
 
-    vary = parse_vary(args.vary)
-    if not vary:
-        raise ParsphError("parsph study: give at least one --vary NAME=V1,V2,... "
-                          "(e.g. --vary particle_size=0.04,0.02,0.01)")
-    rows = study(comm, args.scene, args.out, vary, args.overrides, petsc)
+    rows = study(comm, args.scene, args.out, parse_vary(args.vary), args.overrides, petsc)
     if comm.rank == 0:
         print(f"{'particle_size':>14s} {'cfl':>8s} {'ksp_rtol':>9s} {'steps':>7s} "
               f"{'wall_s':>9s} {'error':>10s}")

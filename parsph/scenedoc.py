@@ -6,14 +6,15 @@ from parsph.materials import MODELS
 from parsph.params_fluid import FluidNumerics
 from parsph.params_solid import Constraint, SolidNumerics
 from parsph.scene import (Body, Domain, Gravity, Loading, Output, PhaseChange, Run, SceneInfo,
-                          Wall)
+                          Study, Wall)
 
 SECTIONS = (("[scene]", SceneInfo, "scene."), ("[domain]", Domain, "domain."),
             ("[run]", Run, "run."), ("[output]", Output, "output."),
             ("[gravity]", Gravity, "gravity."), ("[loading]", Loading, "loading."),
             ("[solid]", SolidNumerics, "solid."),
             ("[fluid]", FluidNumerics, "fluid."),
-            ("[phase_change]", PhaseChange, "phase_change."), ("[[bodies]]", Body, "bodies.N."),
+            ("[phase_change]", PhaseChange, "phase_change."), ("[study]", Study, "study."),
+            ("[[bodies]]", Body, "bodies.N."),
             ("[[walls]]", Wall, "walls.N."), ("[[constraints]]", Constraint, "constraints.N."))
 
 
