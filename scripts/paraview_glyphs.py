@@ -1,46 +1,40 @@
-"""Render a parsph run in ParaView: particles by phase, arrows of velocity coloured by speed.
+"""A parsph run in ParaView: particles by phase, arrows of velocity coloured by speed.
 
-    xvfb-run -a pvbatch scripts/paraview_glyphs.py out/demo out/demo/plots/paraview.png [TIME]
+    xvfb-run -a pvbatch scripts/paraview_glyphs.py RUN_DIR OUT.png [TIME]
 
-TIME (s) defaults to the last frame. Runs with ParaView's own Python (pvbatch), not with
-parsph's; copy it and change what you like (docs/paraview.md).
+TIME (s) defaults to the last frame. Runs with ParaView's Python (pvbatch), not parsph's.
 """
 import os
 import sys
 
-from paraview.simple import (ColorBy, GetColorTransferFunction, Glyph, OpenDataFile,
-                             ResetCamera, SaveScreenshot, Show, UpdatePipeline)
-from paraview.simple import CreateView
+from paraview.simple import (ColorBy, CreateView, GetColorTransferFunction, GetScalarBar,
+                             Glyph, OpenDataFile, SaveScreenshot, Show, UpdatePipeline)
 
 run, png = sys.argv[1], sys.argv[2]
 xdmf = os.path.abspath(os.path.join(run, "particles.xdmf") if os.path.isdir(run) else run)
-reader = OpenDataFile(xdmf)  # Xdmf3ReaderS: every field, v a 3-component vector
-times = list(reader.TimestepValues)
-t = float(sys.argv[3]) if len(sys.argv) > 3 else times[-1]
+reader = OpenDataFile(xdmf)  # ParaView's Xdmf3 reader: every field, v with 3 components
+t = float(sys.argv[3]) if len(sys.argv) > 3 else reader.TimestepValues[-1]
 UpdatePipeline(time=t, proxy=reader)
-info = reader.GetDataInformation()
-x0, x1, y0, y1, z0, z1 = info.GetBounds()
-flat = z1 - z0 < 1e-12  # a 2D run: look along -z
-vmax = reader.PointData["v"].GetRange(-1)[1] or 1.0
+x0, x1, y0, y1, z0, z1 = reader.GetDataInformation().GetBounds()
+vmax = reader.PointData["v"].GetRange(-1)[1] or 1.0  # largest |v| (m/s)
 
 view = CreateView("RenderView")
-view.ViewSize = [1600, 800]
+view.ViewSize = [1600, 700]
 view.ViewTime = t
+view.UseColorPaletteForBackground = 0
 view.Background = [1.0, 1.0, 1.0]
 view.OrientationAxesVisibility = 0
 
-# particles as points, by phase (0 solid, 1 fluid, 2 wall)
-points = Show(reader, view)
+points = Show(reader, view)  # every particle as a point, by phase
 points.SetRepresentationType("Points")
-points.PointSize = 4
+points.PointSize = 3
 ColorBy(points, ("POINTS", "phase"))
 phase = GetColorTransferFunction("phase")
 phase.InterpretValuesAsCategories = 1
 phase.Annotations = ["0", "solid", "1", "fluid", "2", "wall"]
-phase.IndexedColors = [0.63, 0.32, 0.18, 0.12, 0.47, 0.71, 0.75, 0.75, 0.75]
+phase.IndexedColors = [0.63, 0.32, 0.18, 0.45, 0.68, 0.88, 0.78, 0.78, 0.78]
 
-# arrows of v, length |v| (the fastest 6 % of the domain's width), coloured by |v|
-arrows = Glyph(Input=reader, GlyphType="Arrow")
+arrows = Glyph(Input=reader, GlyphType="Arrow")  # arrows of v, the fastest 6 % of the width
 arrows.OrientationArray = ["POINTS", "v"]
 arrows.ScaleArray = ["POINTS", "v"]
 arrows.ScaleFactor = 0.06 * (x1 - x0) / vmax
@@ -51,16 +45,24 @@ speed = GetColorTransferFunction("v")
 speed.ApplyPreset("Viridis (matplotlib)", True)
 speed.RescaleTransferFunction(0.0, vmax)
 shown.SetScalarBarVisibility(view, True)
-bar = speed.GetScalarBar(view) if hasattr(speed, "GetScalarBar") else None
-if bar is not None:
-    bar.Title, bar.ComponentTitle = "|v|", "(m/s)"
+for lut, title in ((speed, "speed (m/s)"), (phase, "phase")):
+    bar = GetScalarBar(lut, view)
+    bar.Title, bar.ComponentTitle = title, ""
     bar.TitleColor = bar.LabelColor = [0.1, 0.1, 0.1]
+points.SetScalarBarVisibility(view, True)
 
-if flat:
+centre = [(x0 + x1) / 2, (y0 + y1) / 2, (z0 + z1) / 2]
+view.CameraFocalPoint = centre
+if z1 - z0 < 1e-12:  # 2D: look along -z, the particles filling the picture
     view.InteractionMode = "2D"
-    view.CameraPosition = [(x0 + x1) / 2, (y0 + y1) / 2, 10.0]
-    view.CameraFocalPoint = [(x0 + x1) / 2, (y0 + y1) / 2, 0.0]
+    view.CameraPosition = centre[:2] + [10.0]
     view.CameraViewUp = [0.0, 1.0, 0.0]
-ResetCamera(view)
-SaveScreenshot(png, view, ImageResolution=view.ViewSize, TransparentBackground=0)
-print(f"{png}: t = {t:.6g} s of {len(times)} frames, max |v| = {vmax:.3g} m/s")
+    view.CameraParallelProjection = 1
+    aspect = view.ViewSize[0] / view.ViewSize[1]
+    view.CameraParallelScale = 0.6 * max((x1 - x0) / aspect, y1 - y0)
+else:  # 3D: from the front left, above, z up
+    view.CameraPosition = [centre[0] - 1.0, centre[1] - 2.0, centre[2] + 1.2]
+    view.CameraViewUp = [0.0, 0.0, 1.0]
+    view.ResetCamera(False)
+SaveScreenshot(png, view, ImageResolution=view.ViewSize)
+print(f"{png}: t = {t:.6g} s, max |v| = {vmax:.3g} m/s")

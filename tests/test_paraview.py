@@ -6,7 +6,9 @@ Debian's ``pvbatch`` through ParaView's default reader for ``.xdmf`` (Xdmf3Reade
 the older XDMF reader, and compares every time step, the number of points and of
 vertex cells (what ParaView draws), the positions and the three velocity components with
 ``particles.h5``, particle by id.
-Skipped only where ``pvbatch`` is not installed (scripts/setup.sh installs it).
+Then the pvbatch script of docs/paraview.md (scripts/paraview_glyphs.py: particles by
+phase, arrows of velocity) renders the run. Skipped only where ``pvbatch`` is not
+installed (scripts/setup.sh installs it).
 """
 import os
 import shutil
@@ -15,16 +17,21 @@ import subprocess
 import numpy as np
 import pytest
 
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+GLYPHS = os.path.join(ROOT, "scripts", "paraview_glyphs.py")
 PVBATCH = shutil.which("pvbatch")
 XVFB_RUN = shutil.which("xvfb-run")
 
-pytestmark = pytest.mark.skipif(
+needs_pvbatch = pytest.mark.skipif(
     PVBATCH is None, reason="pvbatch not found: install Debian's paraview, python3-paraview "
     "and xvfb (scripts/setup.sh does) to run the ParaView reader test")
 
-#: pvbatch script: for each reader and each time step, the point data as an .npz file.
+#: pvbatch script: for each reader and each time step, the point data as an .npz file;
+#: then, in the same pvbatch (one X server per test: xvfb-run started right after another
+#: one stopped can hand out a display the old server still holds), the glyph script.
 READER = r'''
 import json
+import runpy
 import sys
 
 import numpy as np
@@ -53,6 +60,9 @@ for label, make in (("default", lambda: OpenDataFile(xdmf)),
         np.savez(f"{out}/{label}_{k}.npz", **arrays)
 with open(f"{out}/summary.json", "w") as fh:
     json.dump(summary, fh)
+if len(sys.argv) > 3:  # GLYPH_SCRIPT RUN_DIR PNG
+    sys.argv = sys.argv[3:]
+    runpy.run_path(sys.argv[0], run_name="__main__")
 '''
 
 
@@ -71,6 +81,7 @@ SCENES = {
 }
 
 
+@needs_pvbatch
 @pytest.mark.parametrize("dim", [2, 3])
 def test_paraview_reads_steps_points_and_velocity(comm, mpi_tmp_path, dim):
     import json
@@ -93,7 +104,9 @@ def test_paraview_reads_steps_points_and_velocity(comm, mpi_tmp_path, dim):
         fh.write(READER)
     dump = os.path.join(mpi_tmp_path, "pv")
     os.makedirs(dump)
-    r = _pvbatch(script, os.path.abspath(os.path.join(out, "particles.xdmf")), dump)
+    png = os.path.join(mpi_tmp_path, "glyphs.png")
+    r = _pvbatch(script, os.path.abspath(os.path.join(out, "particles.xdmf")), dump,
+                 GLYPHS, out, png)
     assert r.returncode == 0, r.stdout + r.stderr
     assert "Skipping" not in r.stdout + r.stderr, r.stdout + r.stderr
     with open(os.path.join(dump, "summary.json")) as fh:
@@ -127,3 +140,19 @@ def test_paraview_reads_steps_points_and_velocity(comm, mpi_tmp_path, dim):
             speeds.append(np.abs(v_h5).max(axis=0))
     # the runs move, so the comparison above compared real velocities on every axis
     assert (np.max(speeds, axis=0) > 1e-3).all()
+
+    import matplotlib.image  # the picture of the glyph script
+
+    image = matplotlib.image.imread(png)
+    assert image.shape[:2] == (700, 1600)
+    drawn = (image[:, :, :3] < 0.9).any(axis=2)  # not the white background
+    assert drawn.mean() > 0.002, drawn.mean()
+
+
+def test_docs_show_the_glyph_script():
+    """docs/paraview.md shows scripts/paraview_glyphs.py as it is (the test above runs it)."""
+    with open(os.path.join(ROOT, "docs", "paraview.md"), encoding="utf-8") as fh:
+        doc = fh.read()
+    with open(GLYPHS, encoding="utf-8") as fh:
+        script = fh.read()
+    assert f"```python\n{script}```" in doc
