@@ -28,7 +28,8 @@ import numpy as np
 from parsph.errors import ParsphError
 from parsph.io.stats import read_stats
 
-#: Panels from stats.csv: (y label, ((column, legend label), ...), log scale).
+#: Panels from stats.csv: (y label, ((column, legend label), ...), log scale when the
+#: values span a factor of 10 or more).
 PANELS = (
     ("energy (J)", (("kinetic_energy", "kinetic"), ("elastic_energy", "elastic")), False),
     ("front (m)", (("front", "run-out front"),), False),
@@ -110,9 +111,10 @@ def _stats_panels(stats: dict, dim: int | None) -> list:
             if y is None or y.dtype.kind != "f" or not _finite(y):
                 continue
             y = np.where(np.isfinite(y), y, np.nan)
-            if log and not (y[np.isfinite(y)] > 0).any():
-                continue
             lines.append((label, t, y))
+        if lines and log:
+            values = np.concatenate([y[np.isfinite(y)] for _, _, y in lines])
+            log = bool((values > 0).all() and values.max() >= 10 * values.min())
         if lines:
             if ylabel == "fluidised volume":
                 ylabel += {2: " (m²)", 3: " (m³)"}.get(dim, "")
@@ -143,6 +145,19 @@ def _probe_panels(probes: dict) -> list:
         panels.append((title, ylabel, [(f"mean of {len(points)} points", times, mean)], False,
                        band))
     return panels
+
+
+def _linear_axis(ax, lines) -> None:
+    """Plain tick labels (no offset); a near-constant series gets a ±5 % range instead of
+    one that magnifies its round-off."""
+    ax.ticklabel_format(axis="y", useOffset=False)
+    values = np.concatenate([np.asarray(y, float) for _, _, y in lines])
+    values = values[np.isfinite(values)]
+    if values.size:
+        lo, hi = float(values.min()), float(values.max())
+        if hi - lo <= 1e-9 * max(abs(hi), abs(lo)):
+            pad = 0.05 * abs(hi) or 1.0
+            ax.set_ylim(lo - pad, hi + pad)
 
 
 def plot_series(run_dir, png=None, dpi: int = 110):
@@ -210,6 +225,8 @@ def plot_series(run_dir, png=None, dpi: int = 110):
             lines_out[key] = (np.asarray(line.get_xdata(), float), np.asarray(line.get_ydata(), float))
         if log:
             ax.set_yscale("log")
+        else:
+            _linear_axis(ax, lines)
         ax.set_ylabel(ylabel)
         if title:
             ax.set_title(title, fontsize="medium", loc="left")
