@@ -42,7 +42,7 @@ PROBE_COLUMNS = ("time", "probe", "point", "field", "value")
 #: Probes with more points are drawn as mean and min–max band.
 MAX_LINES = 6
 #: Units of probe fields parsph samples (others are labelled by name).
-UNITS = {"p": "Pa", "rho": "kg/m³", "eps_p": "–", "porosity": "–", "speed": "m/s",
+UNITS = {"p": "Pa", "rho": "kg/m³", "eps_p": "–", "porosity": "–", "speed": "m/s", "v": "m/s",
          "mass": "kg", "kinetic_energy": "J", "depth": "m", "thickness": "m"}
 
 
@@ -127,7 +127,7 @@ def _probe_panels(probes: dict) -> list:
     ``[(title, ylabel, [(label, t, y)], False, band or None)]``."""
     panels = []
     for (probe, field), points in probes.items():
-        unit = UNITS.get(field) or ("m/s" if field.startswith("v") else "")
+        unit = UNITS.get(field) or ("m/s" if field.startswith("v_") else "")
         ylabel = f"{field} ({unit})" if unit else field
         title = f"probe {probe}"
         if len(points) <= MAX_LINES:
