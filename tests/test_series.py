@@ -7,6 +7,7 @@ whose lines must be its values.
 """
 import os
 import struct
+import warnings
 
 import numpy as np
 import pytest
@@ -86,28 +87,37 @@ def test_series_panels_of_probes_and_coupled_columns(comm, mpi_tmp_path):
     _write(os.path.join(run, "stats.csv"), "\n".join(rows) + "\n")
     rng = np.random.default_rng(3)
     probe_rows = []
-    for tk in t:
+    for k, tk in enumerate(t):
         probe_rows.append((tk, "gauge", 0, "p", 1000.0 * tk))
-        probe_rows.append((tk, "gauge", 0, "v_x", -tk))
-        for j in range(10):
-            probe_rows.append((tk, "deposit", j, "thickness", 0.01 * j * tk))
+        probe_rows.append((tk, "gauge", 0, "v_x", -tk if k else float("nan")))  # dry at t = 0
+        probe_rows.append((tk, "gauge", 0, "v_y", 0.5 * tk))  # shares v_x's panel
+        probe_rows.append((tk, "gauge", 0, "sigma_xy", 5.0 * tk))
+        for j in range(10):  # a line of 10 stations, none reached at t = 0
+            probe_rows.append((tk, "deposit", j, "depth", 0.01 * j * tk if k else float("nan")))
     order = rng.permutation(len(probe_rows))
     _write(os.path.join(run, "probes.csv"), "time,probe,point,field,value\n" + "".join(
         f"{probe_rows[i][0]!r},{probe_rows[i][1]},{probe_rows[i][2]},{probe_rows[i][3]},"
         f"{probe_rows[i][4]!r}\n" for i in order))
-    png, lines = plot_series(run, dpi=40)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # NaN samples draw gaps, not warnings
+        png, lines = plot_series(run, dpi=40)
     assert png == os.path.join(run, "plots", "series.png") and _png_size(png)[1] > 200
     # the empty ppe_iterations column draws no panel; elastic energy joins kinetic
     assert set(lines) == {"energy (J)/kinetic", "energy (J)/elastic", "front (m)/run-out front",
                           "fluidised volume/fluidised", "time step (s)/dt",
-                          "probe gauge: p (Pa)/p", "probe gauge: v_x (m/s)/v_x",
-                          "probe deposit: thickness (m)/mean of 10 points"}
+                          "probe gauge: p (Pa)/p", "probe gauge: v (m/s)/v_x",
+                          "probe gauge: v (m/s)/v_y", "probe gauge: sigma_xy (Pa)/sigma_xy",
+                          "probe deposit: depth (m)/mean of 10 points"}
     assert np.array_equal(lines["fluidised volume/fluidised"][1], 0.5 * t)
     assert np.array_equal(lines["energy (J)/elastic"][1], 1 - t)
     x, y = lines["probe gauge: p (Pa)/p"]
     assert np.array_equal(x, t) and np.array_equal(y, 1000.0 * t)  # sorted by time
-    x, y = lines["probe deposit: thickness (m)/mean of 10 points"]
-    assert np.array_equal(x, t) and np.allclose(y, 0.045 * t, rtol=1e-12, atol=1e-15)
+    x, y = lines["probe gauge: v (m/s)/v_x"]
+    assert np.isnan(y[0]) and np.array_equal(y[1:], -t[1:])
+    assert np.array_equal(lines["probe gauge: v (m/s)/v_y"][1], 0.5 * t)
+    x, y = lines["probe deposit: depth (m)/mean of 10 points"]
+    assert np.array_equal(x, t) and np.isnan(y[0])
+    assert np.allclose(y[1:], 0.045 * t[1:], rtol=1e-12, atol=0)
 
 
 def test_series_bad_input_names_the_file(comm, mpi_tmp_path):

@@ -12,9 +12,11 @@ iterations of the PPE and the viscous predictor, time step), and, when
     0.1,gauge,0,p,1520.5
 
 ``time`` in s, ``probe`` the probe's name, ``point`` the point's index along the probe
-(0 for a single point), ``field`` the sampled quantity and ``value`` its value. A probe
-of up to :data:`MAX_LINES` points gets one line per point; a longer one (a line probe)
-its mean over the points with the min–max band shaded.
+(0 for a single point), ``field`` the sampled quantity (vectors and tensors per
+component, ``v_x``, ``sigma_xy``) and ``value`` its value (``nan``: no sample). A
+probe's components share a panel (:func:`_group`). A probe of up to :data:`MAX_LINES`
+points gets one line per point; a longer one (a line probe) its mean over the points
+with the min–max band shaded.
 
 matplotlib through its object API with the Agg canvas, as :mod:`parsph.io.plot`.
 """
@@ -22,6 +24,7 @@ from __future__ import annotations
 
 import csv
 import os
+import warnings
 
 import numpy as np
 
@@ -43,11 +46,17 @@ PROBE_COLUMNS = ("time", "probe", "point", "field", "value")
 MAX_LINES = 6
 #: Units of probe fields parsph samples (others are labelled by name).
 UNITS = {"p": "Pa", "rho": "kg/m³", "eps_p": "–", "porosity": "–", "speed": "m/s", "v": "m/s",
-         "mass": "kg", "kinetic_energy": "J", "depth": "m", "thickness": "m"}
+         "nu": "m²/s", "mass": "kg", "kinetic_energy": "J", "depth": "m", "thickness": "m",
+         "fluid_fraction": "–", "solid_fraction": "–", "fluidised_fraction": "–",
+         "volume_fraction": "–"}
+#: Units of vector and tensor fields whose components are probed (``v_x``, ``sigma_xy``).
+PREFIX_UNITS = {"sigma": "Pa", "fraction": "–"}
+#: Suffixes of the components of vectors and tensors.
+COMPONENTS = {"x", "y", "z", "xx", "yy", "zz", "xy", "xz", "yz"}
 
 
-def read_probes(path) -> dict:
-    """Read a tidy ``probes.csv``.
+def probe_series(path) -> dict:
+    """A tidy ``probes.csv`` as one time series per probe, field and point.
 
     Parameters
     ----------
@@ -101,7 +110,8 @@ def _finite(y) -> bool:
 
 
 def _stats_panels(stats: dict, dim: int | None) -> list:
-    """Panels of stats.csv with data: ``[(None, ylabel, [(label, t, y)], log, None)]``."""
+    """Panels of stats.csv with data: ``[(None, ylabel, [(label, t, y)], log, [None, ...])]``
+    (title, y label, lines, log scale, a min–max band per line)."""
     t = stats["time"]
     panels = []
     for ylabel, columns, log in PANELS:
@@ -118,32 +128,54 @@ def _stats_panels(stats: dict, dim: int | None) -> list:
         if lines:
             if ylabel == "fluidised volume":
                 ylabel += {2: " (m²)", 3: " (m³)"}.get(dim, "")
-            panels.append((None, ylabel, lines, log, None))
+            panels.append((None, ylabel, lines, log, [None] * len(lines)))
     return panels
 
 
-def _probe_panels(probes: dict) -> list:
-    """Panels of probes.csv, one per probe and field:
-    ``[(title, ylabel, [(label, t, y)], False, band or None)]``."""
-    panels = []
+def _group(field: str) -> str:
+    """The panel of a probe field: components of a vector or tensor share their field's
+    (``v_x``, ``v_y`` -> ``v``), volumes share one and fractions one."""
+    base, _, component = field.rpartition("_")
+    if base and component in COMPONENTS:
+        return base
+    if field == "volume" or field.endswith("_volume"):
+        return "volume"
+    if field.endswith("_fraction"):
+        return "fraction"
+    return field
+
+
+def _probe_panels(probes: dict, dim) -> list:
+    """Panels of probes.csv, one per probe and field group (:func:`_group`):
+    ``[(title, ylabel, [(label, t, y)], False, [band or None per line])]``."""
+    groups: dict = {}
     for (probe, field), points in probes.items():
-        unit = UNITS.get(field) or ("m/s" if field.startswith("v_") else "")
-        ylabel = f"{field} ({unit})" if unit else field
-        title = f"probe {probe}"
-        if len(points) <= MAX_LINES:
-            lines = [(f"point {k}" if len(points) > 1 else field, t, y)
-                     for k, (t, y) in points.items()]
-            panels.append((title, ylabel, lines, False, None))
-            continue
-        times = np.unique(np.concatenate([t for t, _ in points.values()]))
-        grid = np.full((len(points), len(times)), np.nan)
-        for i, (t, y) in enumerate(points.values()):
-            grid[i, np.searchsorted(times, t)] = y
-        with np.errstate(all="ignore"):
-            mean = np.nanmean(grid, axis=0)
-        band = (times, np.nanmin(grid, axis=0), np.nanmax(grid, axis=0))
-        panels.append((title, ylabel, [(f"mean of {len(points)} points", times, mean)], False,
-                       band))
+        groups.setdefault((probe, _group(field)), []).append((field, points))
+    panels = []
+    for (probe, group), fields in groups.items():
+        unit = {"volume": {2: "m²", 3: "m³"}.get(dim, "")}.get(group) or UNITS.get(group) \
+            or PREFIX_UNITS.get(group, "")
+        lines, bands = [], []
+        for field, points in fields:
+            name = f"{field}, " if len(fields) > 1 else ""
+            if len(points) <= MAX_LINES:
+                for k, (t, y) in points.items():
+                    label = f"{name}point {k}" if len(points) > 1 else field
+                    lines.append((label, t, y))
+                    bands.append(None)
+                continue
+            times = np.unique(np.concatenate([t for t, _ in points.values()]))
+            grid = np.full((len(points), len(times)), np.nan)
+            for i, (t, y) in enumerate(points.values()):
+                grid[i, np.searchsorted(times, t)] = y
+            with warnings.catch_warnings():  # a time with no value at any point: NaN
+                warnings.simplefilter("ignore", RuntimeWarning)
+                mean = np.nanmean(grid, axis=0)
+                bands.append((times, np.nanmin(grid, axis=0), np.nanmax(grid, axis=0)))
+            lines.append((f"{name}mean of {len(points)} points", times, mean))
+        what = group if len(fields) > 1 else fields[0][0]  # a lone field by its own name
+        ylabel = f"{what} ({unit})" if unit else what
+        panels.append((f"probe {probe}", ylabel, lines, False, bands))
     return panels
 
 
@@ -209,18 +241,19 @@ def plot_series(run_dir, png=None, dpi: int = 110):
     panels = _stats_panels(stats, dim)
     probes_path = os.path.join(run_dir, "probes.csv")
     if os.path.isfile(probes_path):
-        panels += _probe_panels(read_probes(probes_path))
+        panels += _probe_panels(probe_series(probes_path), dim)
 
-    fig = Figure(figsize=(8.0, 1.9 * len(panels) + 0.8), dpi=dpi, layout="constrained")
+    height = float(np.clip(30.0 / len(panels), 1.3, 1.9))  # inches per panel
+    fig = Figure(figsize=(8.0, height * len(panels) + 0.8), dpi=dpi, layout="constrained")
     FigureCanvasAgg(fig)
     axes = fig.subplots(len(panels), 1, sharex=True, squeeze=False)[:, 0]
     lines_out = {}
-    for ax, (title, ylabel, lines, log, band) in zip(axes, panels):
-        if band is not None:
-            ax.fill_between(band[0], band[1], band[2], color="C0", alpha=0.2, linewidth=0,
-                            label="min–max")
-        for label, x, y in lines:
-            (line,) = ax.plot(x, y, label=label, linewidth=1.2)
+    for ax, (title, ylabel, lines, log, bands) in zip(axes, panels):
+        for i, ((label, x, y), band) in enumerate(zip(lines, bands)):
+            if band is not None:
+                ax.fill_between(band[0], band[1], band[2], color=f"C{i % 10}", alpha=0.2,
+                                linewidth=0, label=f"{label}: min–max")
+            (line,) = ax.plot(x, y, label=label, linewidth=1.2, color=f"C{i % 10}")
             key = f"{title}: {ylabel}/{label}" if title else f"{ylabel}/{label}"
             lines_out[key] = (np.asarray(line.get_xdata(), float), np.asarray(line.get_ydata(), float))
         if log:
@@ -230,7 +263,7 @@ def plot_series(run_dir, png=None, dpi: int = 110):
         ax.set_ylabel(ylabel)
         if title:
             ax.set_title(title, fontsize="medium", loc="left")
-        if len(lines) > 1 or band is not None:
+        if len(lines) > 1 or any(b is not None for b in bands):
             ax.legend(fontsize="small", loc="best")
         ax.grid(True, alpha=0.3)
     axes[-1].set_xlabel("time (s)")
