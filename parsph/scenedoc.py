@@ -9,12 +9,11 @@ from parsph.scene import (Body, Domain, Gravity, Loading, Output, PhaseChange, R
                           Study, Wall)
 
 SECTIONS = (("[scene]", SceneInfo, "scene."), ("[domain]", Domain, "domain."),
-            ("[run]", Run, "run."), ("[output]", Output, "output."),
+            ("[run]", Run, "run."), ("[output]", Output, "output."), ("[study]", Study, "study."),
             ("[gravity]", Gravity, "gravity."), ("[loading]", Loading, "loading."),
             ("[solid]", SolidNumerics, "solid."),
             ("[fluid]", FluidNumerics, "fluid."),
-            ("[phase_change]", PhaseChange, "phase_change."), ("[study]", Study, "study."),
-            ("[[bodies]]", Body, "bodies.N."),
+            ("[phase_change]", PhaseChange, "phase_change."), ("[[bodies]]", Body, "bodies.N."),
             ("[[walls]]", Wall, "walls.N."), ("[[constraints]]", Constraint, "constraints.N."))
 
 
