@@ -41,9 +41,9 @@ FILE_NAME = "checkpoint.h5"
 
 
 def physics_hash(scene) -> str:
-    """A hash of the scene keys a restart must not change (all but ``run``, ``output``
-    and ``probes``)."""
-    skip = {"run", "output", "probes", "source", "data"}
+    """A hash of the scene keys a restart must not change (all but ``run``, ``output``,
+    ``probes`` and ``study``, which are no physics)."""
+    skip = {"run", "output", "probes", "study", "source", "data"}
     parts = [f"{f.name}={getattr(scene, f.name)!r}" for f in dataclasses.fields(scene)
              if f.name not in skip]
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:16]
@@ -142,8 +142,9 @@ def _check_header(path: str, scene) -> dict:
                           f"'{scene.name}'; restart with the scene that wrote it")
     if attrs.get("scene_physics") != physics_hash(scene):
         raise ParsphError(f"restart file '{path}' was written with other scene settings: on "
-                          f"restart only run.*, output.* and [[probes]] keys may change (domain, "
-                          f"materials, bodies, walls, gravity, solid and fluid must be as before)")
+                          f"restart only run.*, output.*, study.* and [[probes]] keys may "
+                          f"change (domain, materials, bodies, walls, gravity, solid and fluid "
+                          f"must be as before)")
     missing = {"id", "x", "v", "m", "phase", "material", "X"} - names
     if missing:
         raise ParsphError(f"restart file '{path}' lacks fields {sorted(missing)}; it is damaged")

@@ -1,4 +1,4 @@
-"""Command line: ``parsph run|check|scenes|info|plot``.
+"""Command line: ``parsph run|check|scenes|info|plot|study``.
 
 Every verb works the same on 1 rank and under ``mpirun -n N``. Bad input ends with one
 message on rank 0, no traceback, exit status 2, on every rank; a numerical failure with
@@ -49,18 +49,23 @@ def _parser() -> _Parser:
     c.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     sub.add_parser("scenes", help="list the built-in scenes")
     sub.add_parser("info", help="versions of MPI, mpi4py, PETSc/hypre, HDF5, numba, numpy")
-    pl = sub.add_parser("plot", help="render frames of a run directory to PNG")
-    pl.add_argument("dir", help="run output directory (with particles.h5)")
-    pl.add_argument("--frames", default="last",
-                    help="last | all | comma-separated steps, first, last (e.g. first,last)")
+    pl = sub.add_parser("plot", help="render frames (or the time series) of a run to PNG")
+    pl.add_argument("dir", help="run output directory (with particles.h5, stats.csv)")
+    pl.add_argument("--frames", default=None,
+                    help="last | all | comma-separated steps, first, last (e.g. first,last); "
+                    "default last, none with --series alone")
+    pl.add_argument("--series", action="store_true",
+                    help="stats.csv (and probes.csv) over time in one PNG, series.png")
     pl.add_argument("--color-by", default="phase,speed,eps_p",
                     help="comma-separated: phase, speed, eps_p, p, rho, rank")
-    pl.add_argument("--out", default=None, help="directory for the PNG files (default: DIR)")
+    pl.add_argument("--out", default=None,
+                    help="directory for the PNG files (default: DIR/plots)")
     st = sub.add_parser("study", help="error against wall time over a sweep of settings")
     st.add_argument("scene", help="built-in scene name or TOML file with a known answer")
     st.add_argument("--out", required=True, help="directory for study.csv, study.png, runs/")
     st.add_argument("--vary", nargs="+", default=[], metavar="NAME=V1,V2",
-                    help="particle_size=..., cfl=..., ksp_rtol=... or any dotted scene key")
+                    help="particle_size=..., cfl=..., ksp_rtol=... or any dotted scene key "
+                    "(default: the scene's [study] particle_sizes)")
     st.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     return p
 
@@ -68,11 +73,7 @@ def _parser() -> _Parser:
 def cmd_study(comm, args, petsc) -> int:
     from parsph.study import convergence_order, parse_vary, study
 
-    vary = parse_vary(args.vary)
-    if not vary:
-        raise ParsphError("parsph study: give at least one --vary NAME=V1,V2,... "
-                          "(e.g. --vary particle_size=0.04,0.02,0.01)")
-    rows = study(comm, args.scene, args.out, vary, args.overrides, petsc)
+    rows = study(comm, args.scene, args.out, parse_vary(args.vary), args.overrides, petsc)
     if comm.rank == 0:
         print(f"{'particle_size':>14s} {'cfl':>8s} {'ksp_rtol':>9s} {'steps':>7s} "
               f"{'wall_s':>9s} {'error':>10s}")
@@ -196,30 +197,43 @@ def cmd_info(comm) -> int:
     return EXIT_OK
 
 
+def _frame_steps(run_dir, text):
+    """``--frames``: "last", "all" or the sorted steps of a comma-separated list."""
+    if text in ("last", "all"):
+        return text
+    from parsph.io import read_frames
+
+    steps = None
+    picked = []
+    for token in text.split(","):
+        token = token.strip()
+        if token in ("first", "last"):
+            steps = steps or [s for s, _ in read_frames(run_dir)]
+            picked.append(steps[0] if token == "first" else steps[-1])
+        elif token.isdigit():
+            picked.append(int(token))
+        else:
+            raise ParsphError(f"--frames {text!r}: give last, all, or a comma-separated list "
+                              f"of steps, first and last")
+    return sorted(set(picked))
+
+
 def cmd_plot(comm, args) -> int:
     from parsph.io.plot import plot_run
 
     if comm.rank == 0:
-        frames = args.frames
-        if frames not in ("last", "all"):
-            from parsph.io import read_frames
+        frames = None
+        if args.frames is not None or not args.series:
+            frames = _frame_steps(args.dir, args.frames or "last")
+        if args.series:
+            from parsph.io.series import plot_series
 
-            steps = None
-            picked = []
-            for token in frames.split(","):
-                token = token.strip()
-                if token in ("first", "last"):
-                    steps = steps or [s for s, _ in read_frames(args.dir)]
-                    picked.append(steps[0] if token == "first" else steps[-1])
-                elif token.isdigit():
-                    picked.append(int(token))
-                else:
-                    raise ParsphError(f"--frames {args.frames!r}: give last, all, or a comma-"
-                                      f"separated list of steps, first and last")
-            frames = sorted(set(picked))
-        color_by = tuple(s.strip() for s in args.color_by.split(",") if s.strip())
-        for path in plot_run(args.dir, out=args.out, color_by=color_by, frames=frames):
-            print(path)
+            out = os.path.join(args.out or os.path.join(args.dir, "plots"), "series.png")
+            print(plot_series(args.dir, out)[0])
+        if frames is not None:
+            color_by = tuple(s.strip() for s in args.color_by.split(",") if s.strip())
+            for path in plot_run(args.dir, out=args.out, color_by=color_by, frames=frames):
+                print(path)
     return EXIT_OK
 
 

@@ -97,6 +97,14 @@ class PhaseChange:
 
 
 @dataclass(frozen=True)
+class Study:
+    particle_sizes: tuple[float, ...] = spec((), doc="the default sweep of `parsph study` "
+                                             "without --vary: particle sizes d (m), coarse to "
+                                             "fine (built-in scenes: three); empty = give "
+                                             "--vary", gt=0.0)
+
+
+@dataclass(frozen=True)
 class Body:
     name: str = spec(doc="body name")
     material: str = spec(doc="a key of [materials]")
@@ -158,6 +166,7 @@ class Scene:
     solid: SolidNumerics = field(default_factory=SolidNumerics)
     fluid: FluidNumerics = field(default_factory=FluidNumerics)
     phase_change: PhaseChange = field(default_factory=PhaseChange)
+    study: Study = field(default_factory=Study)
     bodies: tuple[Body, ...] = spec((), doc="[[bodies]] tables")
     walls: tuple[Wall, ...] = spec((), doc="[[walls]] tables")
     constraints: tuple[Constraint, ...] = spec((), doc="[[constraints]] tables (TLSPH solid)")
@@ -336,6 +345,10 @@ def _cross_check(scn: Scene, source: str) -> None:
         _check_vec(source, f"{key}.velocity", body.velocity, dim, required=False)
         _check_shape(source, key, body.shape, body, dim, lo, hi)
     _check_phase_change(scn, source)
+    sizes = scn.study.particle_sizes
+    if sizes and (len(sizes) < 2 or any(b >= a for a, b in zip(sizes, sizes[1:]))):
+        _err(source, "study.particle_sizes", f"{list(sizes)}: give two or more sizes, coarse "
+             "to fine (each smaller than the one before), e.g. [0.04, 0.02, 0.01]")
     _check_vec(source, "output.front_direction", scn.output.front_direction, dim, required=False)
     if scn.output.front_direction and not any(scn.output.front_direction):
         _err(source, "output.front_direction", "must not be the zero vector")

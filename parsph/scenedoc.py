@@ -7,10 +7,10 @@ from parsph.params_fluid import FluidNumerics
 from parsph.params_probes import Probe
 from parsph.params_solid import Constraint, SolidNumerics
 from parsph.scene import (Body, Domain, Gravity, Loading, Output, PhaseChange, Run, SceneInfo,
-                          Wall)
+                          Study, Wall)
 
 SECTIONS = (("[scene]", SceneInfo, "scene."), ("[domain]", Domain, "domain."),
-            ("[run]", Run, "run."), ("[output]", Output, "output."),
+            ("[run]", Run, "run."), ("[output]", Output, "output."), ("[study]", Study, "study."),
             ("[gravity]", Gravity, "gravity."), ("[loading]", Loading, "loading."),
             ("[solid]", SolidNumerics, "solid."),
             ("[fluid]", FluidNumerics, "fluid."),

@@ -8,12 +8,14 @@ particle size.
 
 Varied settings are given as ``name=v1,v2,...``; the names ``particle_size``, ``cfl`` and
 ``ksp_rtol`` are short for the scene keys in :data:`ALIASES`, any other name is taken as
-a dotted scene key.
+a dotted scene key. Without any, the study runs the scene's default sweep, the particle
+sizes of its ``[study] particle_sizes`` (every built-in scene declares three).
 """
 from __future__ import annotations
 
 import csv
 import itertools
+import logging
 import math
 import os
 
@@ -21,6 +23,8 @@ import numpy as np
 
 from decomposition.reduce import broadcast
 from parsph.errors import ParsphError
+
+log = logging.getLogger("parsph")
 
 #: Short names of the study axes -> the scene key they set, by what the scene runs:
 #: (stage or mode, key); the first entry whose stage/mode the scene has wins.
@@ -86,17 +90,56 @@ def convergence_order(sizes, errors) -> float:
     return float(np.polyfit(np.log(d[ok]), np.log(e[ok]), 1)[0])
 
 
-def study(comm, scene_name: str, out: str, vary: dict, overrides=(), petsc_args=()) -> list:
-    """Collective: run the sweep, write study.csv and study.png; return the rows (rank 0)."""
+def default_sweep(scene) -> dict:
+    """The sweep of ``parsph study SCENE`` without ``--vary``: the scene's declared
+    ``study.particle_sizes``; a clear error if it declares none."""
+    sizes = list(scene.study.particle_sizes)
+    if not sizes:
+        raise ParsphError(
+            f"scene '{scene.name}' ({scene.source}) declares no default sweep; give "
+            "--vary NAME=V1,V2,... (e.g. --vary particle_size=0.04,0.02,0.01), or declare "
+            "the sweep in the scene: [study] particle_sizes = [0.04, 0.02, 0.01] "
+            "(coarse to fine, m; docs/scenes.md)")
+    return {"particle_size": sizes}
+
+
+def study(comm, scene_name: str, out: str, vary: dict | None = None, overrides=(),
+          petsc_args=()) -> list:
+    """Collective: run the sweep, write study.csv and study.png; return the rows.
+
+    Parameters
+    ----------
+    comm : mpi4py communicator
+        Every run uses all its ranks.
+    scene_name : str
+        Built-in scene name or TOML file; it needs a reference (:mod:`parsph.references`).
+    out : str
+        Directory for ``study.csv``, ``study.png`` and ``runs/NNN``.
+    vary : dict, optional
+        ``{name: [values]}`` (:func:`parse_vary`); empty or None: the scene's default
+        sweep (:func:`default_sweep`).
+    overrides : sequence of str
+        ``KEY=VALUE`` settings applied to every run.
+    petsc_args : sequence of str
+        PETSc options of every run.
+
+    Raises
+    ------
+    ParsphError
+        On every rank, before any run, if the scene has no reference, no default sweep
+        (when ``vary`` is empty) or no setting of a varied name.
+    """
     from decomposition.comm import on_root
-    from parsph.references import error_of
+    from parsph.references import error_of, reference_of
     from parsph.run import run
     from parsph.scene import load_scene
 
-    from parsph.references import reference_of
-
     base = on_root(comm, load_scene, scene_name, list(overrides))
     reference_of(base)  # before any run: a scene without a known answer is refused
+    if not vary:
+        vary = default_sweep(base)
+        log.info("study of '%s': its default sweep, particle_size = %s m (--vary overrides)",
+                 base.name, ", ".join(f"{d:g}" for d in vary["particle_size"]))
     keys = {name: _key_for(base, name) for name in vary}
     names = list(vary)
     rows = []

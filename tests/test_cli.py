@@ -68,6 +68,16 @@ def test_run_and_plot_on_two_ranks(tmp_path):
     assert r.returncode == 0, r.stderr
     pngs = [p for p in r.stdout.split() if p.endswith(".png")]
     assert pngs and all(os.path.getsize(p) > 1000 for p in pngs)
+    r = parsph("plot", str(out), "--series", "--frames", "first,last")
+    assert r.returncode == 0, r.stderr
+    pngs = r.stdout.split()
+    from parsph.io import read_frames
+
+    last = read_frames(str(out))[-1][0]
+    assert [os.path.basename(p) for p in pngs] == ["series.png", "frame_000000.png",
+                                                   f"frame_{last:06d}.png"]
+    assert len({os.path.dirname(p) for p in pngs}) == 1  # side by side in DIR/plots
+    assert all(os.path.getsize(p) > 1000 for p in pngs)
 
 
 BAD_INPUT = [

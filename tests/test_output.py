@@ -175,15 +175,32 @@ def _check_xdmf(xdmf_path, dim, n_frames):
     assert len(grids) == n_frames
     base = os.path.dirname(xdmf_path)
     for grid in grids:
-        assert grid.find("Topology").get("TopologyType") == "Polyvertex"
+        topology = grid.find("Topology")
+        assert topology.get("TopologyType") == "Polyvertex"
+        fname, ref = topology.find("DataItem").text.strip().split(":", 1)
+        with h5py.File(os.path.join(base, fname), "r") as f:  # explicit connectivity
+            n = int(topology.get("NumberOfElements"))
+            assert np.array_equal(f[ref][()], np.arange(n))
         assert grid.find("Geometry").get("GeometryType") == ("XY" if dim == 2 else "XYZ")
         float(grid.find("Time").get("Value"))
         names = {a.get("Name"): a.get("AttributeType") for a in grid.findall("Attribute")}
-        if dim == 2:
-            assert names["v_x"] == names["v_y"] == "Scalar" and "v" not in names
-        else:
-            assert names["v"] == "Vector"
+        assert names["v"] == "Vector" and names["sigma"] == "Tensor"
         assert names["eps_p"] == names["p"] == names["phase"] == "Scalar"
+        assert names["extra4"] == "Matrix"
+        for a in grid.findall("Attribute"):  # plain HDF items only: ParaView reads no other
+            items = a.findall("DataItem")
+            assert len(items) == 1 and items[0].get("Format") == "HDF" and not list(items[0])
+        # vectors and tensors of 3 (3 x 3) components, in 2D through their view (z = 0)
+        fname, ref = grid.find("Attribute[@Name='v']/DataItem").text.strip().split(":", 1)
+        with h5py.File(os.path.join(base, fname), "r") as f:
+            group = ref.rsplit("/xdmf/", 1)[0] if dim == 2 else ref.rsplit("/", 1)[0]
+            v, view = f[group]["v"][()], f[ref][()]
+            sigma = f[group]["sigma"][()]
+            sigma_view = f[ref.replace("/v", "/sigma")][()]
+        assert view.shape == (len(v), 3) and sigma_view.shape == (len(v), 3, 3)
+        assert np.array_equal(view[:, :dim], v) and not view[:, dim:].any()
+        assert np.array_equal(sigma_view[:, :dim, :dim], sigma)
+        assert not sigma_view[:, dim:].any() and not sigma_view[:, :, dim:].any()
         for item in grid.iter("DataItem"):
             if item.get("Format") != "HDF":
                 continue
@@ -202,7 +219,10 @@ def test_xdmf_describes_every_frame(comm, mpi_tmp_path, dim):
     live = os.path.join(mpi_tmp_path, "particles.xdmf")
     with FrameWriter(mpi_tmp_path, comm, dim, xdmf=live) as w:
         for step in range(3):
-            w.write_frame(step * 5, step * 0.01, _rows(comm.rank, 2 + comm.rank, dim, step))
+            rows = _rows(comm.rank, 2 + comm.rank, dim, step)
+            rows["sigma"] = rows["v"][:, :, None] * rows["x"][:, None, :]
+            rows["extra4"] = np.repeat(rows["p"][:, None], 4, axis=1)
+            w.write_frame(step * 5, step * 0.01, rows)
     comm.Barrier()
     if comm.rank == 0:
         _check_xdmf(live, dim, 3)  # rewritten after each frame from the writer's index

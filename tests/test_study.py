@@ -59,3 +59,64 @@ def test_plot_labels_name_the_settings_that_vary():
     assert point_labels(by_cfl) == ["cfl=0.1", "cfl=0.4"]
     both = [dict(particle_size=d, cfl=0.1, ksp_rtol=r) for d, r in ((0.1, 1e-4), (0.05, 1e-8))]
     assert point_labels(both) == ["d=0.1, rtol=0.0001", "d=0.05, rtol=1e-08"]
+
+
+def test_study_without_vary_runs_the_scenes_default_sweep(comm, mpi_tmp_path, capsys):
+    """``parsph study hydrostatic --out DIR``: the three sizes the scene declares."""
+    from parsph.cli import main
+    from parsph.scene import load_scene
+
+    out = os.path.join(mpi_tmp_path, "default")
+    assert main(["study", "hydrostatic", "--out", out, "--set", "run.end_time=0.01",
+                 "--set", "output.every=0.01"]) == 0
+    comm.Barrier()
+    if comm.rank != 0:
+        return
+    sizes = list(load_scene("hydrostatic").study.particle_sizes)
+    assert len(sizes) == 3
+    with open(os.path.join(out, "study.csv")) as fh:
+        table = list(csv.DictReader(fh))
+    assert [float(r["particle_size"]) for r in table] == sizes
+    errors = [float(r["error"]) for r in table]
+    assert all(np.isfinite(errors)) and errors[0] > errors[-1]  # finer is closer to rho g (H - y)
+    assert "observed order of convergence" in capsys.readouterr().out
+
+
+def test_study_default_sweep_of_a_users_scene(comm, mpi_tmp_path):
+    """A scene of one's own: refused without a declaration (naming --vary and the key),
+    its declared sweep run with one, --vary still overriding it."""
+    path = comm.bcast(write(mpi_tmp_path, MOVING_2D) if comm.rank == 0 else None)
+    out = os.path.join(mpi_tmp_path, "mine")
+    short = ["run.end_time=0.1", "output.every=0.1"]
+    with pytest.raises(ParsphError, match=r"declares no default sweep; give --vary .*"
+                       r"\[study\] particle_sizes"):
+        study(comm, path, out, {}, overrides=short)
+    assert not os.path.exists(os.path.join(out, "runs"))  # refused before any run
+    declared = short + ["study.particle_sizes=[0.1, 0.05]"]
+    rows = study(comm, path, out, None, overrides=declared)
+    assert [r["particle_size"] for r in rows] == [0.1, 0.05]
+    rows = study(comm, path, out, {"particle_size": [0.2]}, overrides=declared)
+    assert [r["particle_size"] for r in rows] == [0.2]
+
+
+def test_every_builtin_scene_declares_its_sweep():
+    from parsph.scene import builtin_names, geometry_warnings, load_scene
+
+    for name in builtin_names():
+        sizes = load_scene(name).study.particle_sizes
+        assert len(sizes) == 3, name
+        for d in sizes:  # each size fits the scene's geometry
+            assert geometry_warnings(load_scene(name, [f"domain.particle_size={d!r}"])) == [], \
+                (name, d)
+
+
+@pytest.mark.parametrize("sizes, match", [("[0.01, 0.02]", "coarse to fine"),
+                                          ("[0.01]", "two or more"),
+                                          ("[0.02, -0.01]", r"study.particle_sizes\[1\]")])
+def test_bad_sweep_names_the_key(sizes, match):
+    from parsph.errors import SceneError
+    from parsph.scene import load_scene
+
+    with pytest.raises(SceneError, match=match) as info:
+        load_scene("hydrostatic", [f"study.particle_sizes={sizes}"])
+    assert "study.particle_sizes" in str(info.value)

@@ -9,6 +9,8 @@
 - :class:`~parsph.io.probes.ProbeWriter`, :func:`~parsph.io.probes.read_probes`:
   ``probes.csv`` (and ``probes_points.csv``).
 - :func:`~parsph.io.plot.plot_run`: PNG pictures of frames (``parsph plot``).
+- :func:`~parsph.io.series.plot_series`: stats.csv and probes.csv over time in one PNG
+  (``parsph plot --series``).
 
 Names are imported lazily, so ``import parsph.io`` loads neither h5py nor matplotlib.
 """
@@ -29,6 +31,7 @@ _EXPORTS = {
     "ProbeWriter": "parsph.io.probes",
     "read_probes": "parsph.io.probes",
     "plot_run": "parsph.io.plot",
+    "plot_series": "parsph.io.series",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -14,6 +14,19 @@ Layout of ``particles.h5``::
         rank      (N,)      int32    rank that owned the row when it was written
         <extra>   (N, ...)           any further field handed to ``write_frame``
 
+In 2D, each vector and tensor field also gets a 3-component view for ParaView, which
+reads vectors of 3 and tensors of 9 components only::
+
+    /frames/NNNNNN/xdmf/v   (N, 3)    HDF5 virtual dataset: columns 0, 1 map ``v``,
+                                      column 2 is the fill value 0 (no data copied)
+    /frames/NNNNNN/xdmf/<f> (N, 3, 3) the same for an (N, 2, 2) field
+
+The views hold no data of their own; :func:`read_frame` skips them and
+``particles.xdmf`` points at them (:mod:`parsph.io.xdmf`). ParaView's Xdmf3 reader makes
+the vertex cells it draws only from an explicit connectivity, so the file also holds,
+once per distinct particle count N, ``/xdmf/vertices_N`` = 0 … N − 1 (int32), shared by
+the frames of that count.
+
 N is the global number of owned particles at that step. Rank r writes its owned rows at
 rows ``offset … offset + n_r − 1`` where ``offset`` comes from
 :func:`decomposition.numbering.global_offset`, so rows are ordered by rank, then by local
@@ -40,6 +53,10 @@ from decomposition.numbering import global_offset
 from parsph.errors import ParsphError
 
 FILE_NAME = "particles.h5"
+#: Subgroup of a frame holding the 3-component views of its 2D vector and tensor fields.
+VIEWS = "xdmf"
+#: Root datasets ``xdmf/vertices_N``: the polyvertex connectivity 0 … N − 1 of N particles.
+VERTICES = "xdmf/vertices"
 
 #: Required datasets of every frame: name -> (dtype, trailing shape; "dim" = (dim,)).
 SCHEMA: dict[str, tuple[np.dtype, str]] = {
@@ -83,12 +100,20 @@ class FrameInfo:
         Global number of rows.
     fields : dict
         Dataset name -> ``(dtype, shape)`` with the global shape.
+    views : dict
+        Field name -> ``(dtype, shape)`` of its 3-component view ``xdmf/<name>`` (2D
+        vector and tensor fields; empty in 3D).
+    vertices : tuple or None
+        ``(dataset path, dtype)`` of the frame's polyvertex connectivity
+        (``xdmf/vertices_N``), None if the file has none (written before it existed).
     """
 
     step: int
     time: float
     n: int
     fields: dict[str, tuple[np.dtype, tuple[int, ...]]] = field(default_factory=dict)
+    views: dict[str, tuple[np.dtype, tuple[int, ...]]] = field(default_factory=dict)
+    vertices: tuple[str, np.dtype] | None = None
 
 
 def _attr_value(key, value):
@@ -332,6 +357,12 @@ class FrameWriter:
             info.fields[key] = (a.dtype, shape)
             if total > 0:
                 self._write_rows(dset, a, offset, n)
+        if self.dim == 2 and total > 0:
+            for key, (dtype, shape) in info.fields.items():
+                if shape[1:] in ((2,), (2, 2)):
+                    info.views[key] = _write_view(grp, key, dtype, shape)
+        if total > 0:
+            info.vertices = self._vertices(total, offset, n)
         f.flush()
         self.frames = [fr for fr in self.frames if fr.step != info.step] + [info]
         self.frames.sort(key=lambda fr: fr.step)
@@ -345,6 +376,16 @@ class FrameWriter:
                 except Exception as exc:  # noqa: BLE001 - agreed on by every rank below
                     error = exc
             raise_if_any(self.comm, error)
+
+    def _vertices(self, total: int, offset: int, n: int) -> tuple[str, np.dtype]:
+        """Collective: ``xdmf/vertices_<total>`` (0 … total − 1), written if not there."""
+        name = f"{VERTICES}_{total}"
+        dtype = np.dtype(np.int32 if total < 2**31 else np.int64)
+        if name in self._file:
+            return name, self._file[name].dtype
+        dset = self._file.create_dataset(name, shape=(total,), dtype=dtype)
+        self._write_rows(dset, np.arange(offset, offset + n, dtype=dtype), offset, n)
+        return name, dtype
 
     def _write_rows(self, dset, a: np.ndarray, offset: int, n: int) -> None:
         """Collective write of rows ``offset … offset + n − 1`` (n may be 0)."""
@@ -367,6 +408,22 @@ class FrameWriter:
         dset.id.write(mspace, fspace, a, dxpl=self._dxpl)
 
 
+def _write_view(grp, name: str, dtype, shape) -> tuple[np.dtype, tuple[int, ...]]:
+    """Collective (metadata only): the 3-component view ``grp/xdmf/name`` of a 2D field.
+
+    An HDF5 virtual dataset of shape (N, 3) (or (N, 3, 3)) whose first 2 (2 x 2) entries
+    map the dataset ``grp/name`` of shape (N, 2) (or (N, 2, 2)) and whose others read as
+    the fill value 0. The source file is named ``"."`` (this file), so the view survives
+    moving or renaming the file. Returns the view's ``(dtype, shape)``.
+    """
+    padded = (shape[0],) + (3,) * (len(shape) - 1)
+    layout = h5py.VirtualLayout(shape=padded, dtype=dtype)
+    source = h5py.VirtualSource(".", f"{grp.name}/{name}", shape=shape, dtype=dtype)
+    layout[(slice(None),) + (slice(0, 2),) * (len(shape) - 1)] = source
+    grp.require_group(VIEWS).create_virtual_dataset(name, layout, fillvalue=0)
+    return np.dtype(dtype), padded
+
+
 # -- reading (serial, any rank) --------------------------------------------------------
 
 def _index(f) -> list[FrameInfo]:
@@ -384,10 +441,18 @@ def _index(f) -> list[FrameInfo]:
         for name, d in g.items():
             if isinstance(d, h5py.Dataset):
                 info.fields[name] = (d.dtype, tuple(d.shape))
+        views = g.get(VIEWS)
+        if isinstance(views, h5py.Group):
+            for name, d in views.items():
+                if isinstance(d, h5py.Dataset) and name in info.fields:
+                    info.views[name] = (d.dtype, tuple(d.shape))
         if "id" in info.fields:
             info.n = info.fields["id"][1][0]
         elif info.fields:
             info.n = next(iter(info.fields.values()))[1][0]
+        vertices = f.get(f"{VERTICES}_{info.n}")
+        if isinstance(vertices, h5py.Dataset) and vertices.shape == (info.n,):
+            info.vertices = (vertices.name.lstrip("/"), vertices.dtype)
         frames.append(info)
     frames.sort(key=lambda fr: fr.step)
     return frames

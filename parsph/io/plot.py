@@ -289,7 +289,7 @@ def plot_run(run_dir, out=None, color_by=("phase", "speed", "eps_p"), frames="la
         paths = []
         for fr in chosen:
             grp = f[frame_name(fr.step)]
-            data = {k: d[()] for k, d in grp.items()}
+            data = {k: d[()] for k, d in grp.items() if hasattr(d, "shape")}
             png = os.path.join(out, f"frame_{fr.step:06d}.png")
             paths.append(render_frame(data, attrs, fr.time, fr.step, fname, png,
                                       color_by=color_by, dpi=dpi))

@@ -6,17 +6,25 @@ vertex per particle) whose data stay in the HDF5 file, referenced relatively
 
 Field mapping
 -------------
-- Geometry: dataset ``x``; ``GeometryType="XY"`` in 2D, ``"XYZ"`` in 3D (``x`` is not
-  repeated as an attribute; ParaView's ``coordsX``/``coordsY`` give its components).
+ParaView (5.11, both its Xdmf3 readers and the older XDMF reader) takes a Vector
+attribute of 3 components and a Tensor of 9 only, and it cannot read computed items
+(``HyperSlab`` or ``Function``/``JOIN`` data items: "Skipping unrecognized array type
+[None]"). Every attribute therefore points at a plain HDF5 dataset:
+
+- Geometry: dataset ``x``; ``GeometryType="XY"`` in 2D, ``"XYZ"`` in 3D (ParaView puts
+  z = 0 in 2D; ``x`` is not repeated as an attribute).
 - A field with one value per particle (``eps_p``, ``p``, ``phase``, ``id``, ...) is a
   ``Scalar`` attribute.
-- In 3D a field of shape (N, 3) is a ``Vector`` attribute and (N, 3, 3) a ``Tensor``.
-- In 2D, XDMF has no 2-component vector type, so a field of shape (N, 2) (``v``) is
-  written as one ``Scalar`` attribute per component, ``v_x`` and ``v_y``, each a
-  ``HyperSlab`` of the (N, 2) dataset (no data copied; every XDMF reader supports
-  hyperslabs). In ParaView, ``v_x*iHat + v_y*jHat`` in the Calculator rebuilds the vector.
-  Any other multi-component field (2D tensors, ...) is written the same way, one scalar
-  per component (``F_xx``, ``F_xy``, ...).
+- A field of shape (N, dim) (``v``) is a ``Vector`` attribute and (N, dim, dim) a
+  ``Tensor``: in 3D the dataset itself, in 2D its 3-component view ``xdmf/<name>``
+  written by :class:`~parsph.io.hdf5.FrameWriter` (an HDF5 virtual dataset: the 2
+  components of the field and z = 0, no data copied).
+- Any other shape ((N, 4), or a 2D field of a file written before the views) is a
+  ``Matrix`` attribute: an array of as many components as a row holds.
+
+The ``Polyvertex`` topology of a frame of N particles points at ``xdmf/vertices_N``
+(0 … N − 1): ParaView's Xdmf3 readers build the vertex cells they draw only from an
+explicit connectivity (without it the points are there but nothing is drawn).
 
 Frames with no particle are left out (a grid of zero points stops some readers).
 """
@@ -29,9 +37,7 @@ import xml.etree.ElementTree as ET
 import numpy as np
 
 from parsph.errors import ParsphError
-from parsph.io.hdf5 import FrameInfo, _index, frame_name, open_run, resolve_path
-
-_AXES = "xyz"
+from parsph.io.hdf5 import VIEWS, FrameInfo, _index, frame_name, open_run, resolve_path
 
 
 def _number_type(dtype: np.dtype) -> tuple[str, str]:
@@ -59,30 +65,21 @@ def _hdf_item(parent, ref: str, dtype, shape):
     return item
 
 
-def _component_items(grid, name: str, ref: str, dtype, shape):
-    """One Scalar attribute per component of a multi-component dataset (hyperslabs)."""
-    n, trail = shape[0], shape[1:]
-    rank = len(shape)
-    for index in np.ndindex(*trail):
-        if all(i < 3 for i in index) and len(index) <= 2:
-            suffix = "".join(_AXES[i] for i in index)
-        else:
-            suffix = "_".join(str(i) for i in index)
-        attr = ET.SubElement(grid, "Attribute", {
-            "Name": f"{name}_{suffix}", "AttributeType": "Scalar", "Center": "Node",
-        })
-        slab = ET.SubElement(attr, "DataItem", {
-            "ItemType": "HyperSlab", "Dimensions": _dims((n,) + (1,) * (rank - 1)),
-            "Type": "HyperSlab",
-        })
-        sel = ET.SubElement(slab, "DataItem", {
-            "Dimensions": f"3 {rank}", "NumberType": "Int", "Format": "XML",
-        })
-        start = (0,) + tuple(index)
-        stride = (1,) * rank
-        count = (n,) + (1,) * (rank - 1)
-        sel.text = " ".join(_dims(v) for v in (start, stride, count))
-        _hdf_item(slab, ref, dtype, shape)
+def _attribute(grid, name: str, kind: str, ref: str, dtype, shape) -> None:
+    attr = ET.SubElement(grid, "Attribute", {"Name": name, "AttributeType": kind, "Center": "Node"})
+    _hdf_item(attr, ref, dtype, shape)
+
+
+def attribute_kind(trail: tuple) -> str:
+    """XDMF ``AttributeType`` of a field whose rows have shape ``trail`` (2D vectors and
+    tensors already padded to 3 components by their view)."""
+    if int(np.prod(trail, dtype=np.int64)) == 1:
+        return "Scalar"
+    if trail == (3,):
+        return "Vector"
+    if trail == (3, 3):
+        return "Tensor"
+    return "Matrix"
 
 
 def build_xdmf(frames: list[FrameInfo], h5_ref: str, dim: int) -> ET.Element:
@@ -113,9 +110,12 @@ def build_xdmf(frames: list[FrameInfo], h5_ref: str, dim: int) -> ET.Element:
         group = frame_name(fr.step)
         grid = ET.SubElement(series, "Grid", {"Name": f"step_{fr.step:06d}", "GridType": "Uniform"})
         ET.SubElement(grid, "Time", {"Value": repr(float(fr.time))})
-        ET.SubElement(grid, "Topology", {
+        topology = ET.SubElement(grid, "Topology", {
             "TopologyType": "Polyvertex", "NumberOfElements": str(fr.n), "NodesPerElement": "1",
         })
+        if fr.vertices is not None:  # without it, the Xdmf3 readers make no cell to draw
+            path, vdtype = fr.vertices
+            _hdf_item(topology, f"{h5_ref}:/{path}", vdtype, (fr.n,))
         geometry = ET.SubElement(grid, "Geometry", {"GeometryType": "XY" if dim == 2 else "XYZ"})
         xdtype, xshape = fr.fields["x"]
         _hdf_item(geometry, f"{h5_ref}:/{group}/x", xdtype, xshape)
@@ -124,20 +124,10 @@ def build_xdmf(frames: list[FrameInfo], h5_ref: str, dim: int) -> ET.Element:
             if name == "x" or shape[0] != fr.n:
                 continue  # the geometry itself, or not a per-particle field
             ref = f"{h5_ref}:/{group}/{name}"
-            trail = tuple(shape[1:])
-            if trail == ():
-                kind = "Scalar"
-            elif dim == 3 and trail == (3,):
-                kind = "Vector"
-            elif dim == 3 and trail == (3, 3):
-                kind = "Tensor"
-            else:
-                _component_items(grid, name, ref, dtype, shape)
-                continue
-            attr = ET.SubElement(grid, "Attribute", {
-                "Name": name, "AttributeType": kind, "Center": "Node",
-            })
-            _hdf_item(attr, ref, dtype, shape)
+            if name in fr.views:  # 2D vector or tensor: its 3-component view
+                dtype, shape = fr.views[name]
+                ref = f"{h5_ref}:/{group}/{VIEWS}/{name}"
+            _attribute(grid, name, attribute_kind(tuple(shape[1:])), ref, dtype, shape)
     return root
 
 
