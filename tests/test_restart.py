@@ -14,8 +14,12 @@ from tests.scenes import MOVING_2D, last_frame, write
 
 
 def _scene(comm, tmp, overrides=()):
-    path = comm.bcast(write(tmp, MOVING_2D) if comm.rank == 0 else None)
-    return load_scene(path, list(overrides))
+    # written once: rewriting it while another rank still reads it for the last scene
+    # gave that rank an empty file (and a hang, the other rank going on to a collective)
+    path = os.path.join(tmp, "scene.toml")
+    if comm.rank == 0 and not os.path.exists(path):
+        write(tmp, MOVING_2D)
+    return load_scene(comm.bcast(path), list(overrides))
 
 
 def _interrupted_and_whole(comm_a, comm_b, tmp, tag):
@@ -133,15 +137,60 @@ def test_physics_restart_is_bit_for_bit(comm, mpi_tmp_path, name, overrides, hal
                 assert np.array_equal(a[key], b[key]), key
 
 
+def _first_at_or_after(times, targets):
+    return [min(t for t in times if t >= target - 1e-12) for target in targets]
+
+
 def test_restart_with_another_frame_interval(comm, mpi_tmp_path):
-    """output.every may change at a restart: the next frame follows the new interval."""
+    """output.every may change at a restart: the next frame follows the new interval,
+    each at the first step at or after its time; the steps are those of one run."""
     out = os.path.join(mpi_tmp_path, "out")
     run(_scene(comm, mpi_tmp_path, ["run.end_time=0.25", "output.every=0.1"]), out, comm=comm,
         progress=False)
     run(_scene(comm, mpi_tmp_path, ["run.end_time=0.3", "output.every=0.02"]), out, comm=comm,
         progress=False, restart=os.path.join(out, "checkpoint.h5"))
+    run(_scene(comm, mpi_tmp_path, ["run.end_time=0.3"]), os.path.join(mpi_tmp_path, "whole"),
+        comm=comm, progress=False)
     if comm.rank == 0:
-        from parsph.io import read_frames
+        from parsph.io import read_frames, read_stats
 
         times = [t for _, t in read_frames(os.path.join(out, "particles.h5"))]
-        assert times == pytest.approx([0.0, 0.1, 0.2, 0.25, 0.26, 0.28, 0.3])
+        steps = list(read_stats(os.path.join(out, "stats.csv"))["time"])
+        assert steps == list(read_stats(os.path.join(mpi_tmp_path, "whole", "stats.csv"))["time"])
+        first_end = _first_at_or_after(steps, [0.25])[0]  # where the first run stopped
+        expected = [0.0] + _first_at_or_after(steps, [0.1, 0.2]) + [first_end] \
+            + _first_at_or_after(steps, [0.26, 0.28, 0.3])
+        assert times == sorted(set(expected))
+        assert times[-1] == steps[-1] >= 0.3
+
+
+def test_preemption_waits_for_a_sync_step_and_restarts_bit_for_bit(comm, mpi_tmp_path,
+                                                                    monkeypatch):
+    """SIGUSR1 on rank 0 after step 5 of a dam break (a sync step every 4 steps, the PPE's
+    lagged set-up): every rank goes on to step 8, checkpoints there and stops; the run
+    restarted from it ends bit for bit where the uninterrupted one ends."""
+    import signal
+
+    from parsph import faults
+    from parsph.errors import Preempted
+
+    cut, whole = os.path.join(mpi_tmp_path, "cut"), os.path.join(mpi_tmp_path, "whole")
+    scene = load_scene("dam_break", ["domain.particle_size=0.0146", "output.every=0.01",
+                                     "output.progress=false", "run.end_time=0.04"])
+    inject = faults.inject_nan
+
+    def signal_at_step_5(ctx):
+        inject(ctx)
+        if ctx.step == 5 and ctx.comm.rank == 0:
+            signal.raise_signal(signal.SIGUSR1)
+
+    monkeypatch.setattr(faults, "inject_nan", signal_at_step_5)
+    with pytest.raises(Preempted, match="at step 8"):
+        run(scene, cut, comm=comm, progress=False)
+    monkeypatch.setattr(faults, "inject_nan", inject)
+    run(scene, cut, comm=comm, progress=False, restart=os.path.join(cut, "checkpoint.h5"))
+    run(scene, whole, comm=comm, progress=False)
+    if comm.rank == 0:
+        a, b = last_frame(cut), last_frame(whole)
+        for key in ("id", "x", "v", "p", "rho"):
+            assert np.array_equal(a[key], b[key]), key
