@@ -317,6 +317,13 @@ def _next_time(t: float, every: float) -> float:
     return (math.floor(t / every + 1e-9) + 1) * every
 
 
+def same_directory(restart: str, out: str) -> bool:
+    """Whether ``out`` is the directory of the checkpoint ``restart`` (then the restart
+    continues that run there; otherwise it starts a new run directory, a branch)."""
+    here = os.path.dirname(os.path.abspath(restart))
+    return os.path.realpath(here) == os.path.realpath(out)
+
+
 def kinetic_energy(ctx) -> tuple[float, float]:
     """Collective: ``(kinetic energy, mass)`` of the moving (non-wall) particles (J, kg;
     per metre in 2D)."""
@@ -478,9 +485,12 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
     """Run a validated scene; write ``out/particles.h5``, ``.xdmf``, ``stats.csv`` and
     ``checkpoint.h5``.
 
-    Collective over ``comm`` (default: the world). ``restart`` continues from a checkpoint
-    (bit-for-bit the uninterrupted run at the same rank count). Returns a summary (steps,
-    time, wall seconds, particle count).
+    Collective over ``comm`` (default: the world). ``restart`` starts from a checkpoint:
+    in its own directory the run continues there (frames appended, ``stats.csv`` kept up
+    to the checkpoint's step); in another ``out`` it is a branch, a new run directory
+    whose first frame is the checkpoint's state, the checkpoint's directory untouched.
+    Either way the steps are those of the uninterrupted run (bit for bit at the same rank
+    count). Returns a summary (steps, time, wall seconds, particle count).
 
     Raises
     ------
@@ -499,12 +509,16 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
     comm = comm or world()
     wall0 = time.perf_counter()
     ctx, specs, stages, ck = _build(scene, out, comm, petsc_args, restart)
-    continuing = ck is not None
+    continuing = ck is not None and same_directory(restart, out)
     particles, dim, d = ctx.particles, ctx.dim, ctx.d
     n_total = int(global_sum(comm, particles.n_owned))
+    if ck is None:
+        origin = ""
+    else:
+        origin = (f"; {'restarted' if continuing else f'branched from {restart}'} at "
+                  f"t = {ctx.time:.6g} s, step {ctx.step}")
     log.info("scene '%s': %d particles on %d rank(s), stages: %s%s", scene.name, n_total,
-             comm.size, ", ".join(s.name for s in specs),
-             f"; restarted at t = {ctx.time:.6g} s, step {ctx.step}" if ck else "")
+             comm.size, ", ".join(s.name for s in specs), origin)
     h5 = os.path.join(out, "particles.h5")
     xdmf = os.path.join(out, "particles.xdmf")
     ck_path = os.path.join(out, checkpoint.FILE_NAME)
@@ -529,6 +543,7 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
 
     def write_checkpoint():
         meta = {"scene": scene.name, "scene_physics": checkpoint.physics_hash(scene),
+                "scene_physics_keys": checkpoint.physics_keys(scene),
                 "dim": dim, "time": ctx.time, "step": ctx.step, "next_frame": next_frame,
                 "last_frame_step": last_frame_step, "next_checkpoint": next_ck,
                 "elastic_energy": last["ee"]}
@@ -550,8 +565,10 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
     with FrameWriter(h5, comm, dim, attrs=attrs, xdmf=xdmf, mode=mode) as writer, \
             StatsWriter(os.path.join(out, "stats.csv"), stats_columns(stages),
                         enabled=comm.rank == 0, mode=mode) as stats, _StopRequest() as stop:
-        if not continuing:
-            write_frame()
+        if continuing:
+            writer.drop_frames_after(ctx.step)  # left by a run killed after the checkpoint
+        else:
+            write_frame()  # frame 0: the initial state, or the checkpoint's (a branch)
             last_frame_step = ctx.step
         # the energy budget of each step (stats.csv energy_bound, energy_ratio) needs the
         # kinetic and elastic energy before it: of the initial state, or the checkpoint's

@@ -10,7 +10,7 @@ from mpi4py import MPI
 from parsph.errors import ParsphError
 from parsph.run import run
 from parsph.scene import load_scene
-from tests.scenes import MOVING_2D, last_frame, write
+from tests.scenes import MOVING_2D, by_id, last_frame, write
 
 
 def _scene(comm, tmp, overrides=()):
@@ -93,7 +93,10 @@ def test_bad_restart_files(comm, mpi_tmp_path):
         (broken, scene, "not a readable HDF5 checkpoint"),
         (text, scene, "not a readable HDF5 checkpoint"),
         (good, load_scene("hydrostatic", ["run.mode=geometry"]), "from scene 'moving'"),
-        (good, _scene(comm, mpi_tmp_path, ["domain.particle_size=0.04"]), "other scene settings"),
+        (good, _scene(comm, mpi_tmp_path, ["domain.particle_size=0.04"]),
+         r"other scene settings: \[domain\] differs"),
+        (good, _scene(comm, mpi_tmp_path, ["materials.sand.density=1600.0"]),
+         r"\[materials\] differs.*branch"),
     ]
     for path, scn, words in cases:
         with pytest.raises(ParsphError, match=words):
@@ -164,6 +167,76 @@ def test_restart_with_another_frame_interval(comm, mpi_tmp_path):
         assert times[-1] == steps[-1] >= 0.3
 
 
+def _hashes(directory):
+    import hashlib
+
+    return {name: hashlib.sha256(open(os.path.join(directory, name), "rb").read()).hexdigest()
+            for name in sorted(os.listdir(directory))}
+
+
+BRANCH = ["domain.particle_size=0.0146", "output.every=0.01", "output.progress=false"]
+
+
+def test_branch_into_a_new_directory(comm, mpi_tmp_path):
+    """``--restart A/checkpoint.h5 --out B``: B starts at A's last state (its frame 0, its
+    stats from the next step) and, with a later end time and another frame interval, ends
+    bit for bit where a straight run ends; A is left byte for byte as it was."""
+    a, b, whole = (os.path.join(mpi_tmp_path, k) for k in ("A", "B", "whole"))
+    run(load_scene("dam_break", BRANCH + ["run.end_time=0.02"]), a, comm=comm, progress=False)
+    before = _hashes(a) if comm.rank == 0 else None
+    comm.Barrier()
+    run(load_scene("dam_break", BRANCH + ["run.end_time=0.04", "output.every=0.004"]), b,
+        comm=comm, progress=False, restart=os.path.join(a, "checkpoint.h5"))
+    run(load_scene("dam_break", BRANCH + ["run.end_time=0.04"]), whole, comm=comm,
+        progress=False)
+    if comm.rank != 0:
+        return
+    from parsph.io import read_frame, read_frames, read_stats
+
+    assert _hashes(a) == before
+    with h5py.File(os.path.join(a, "checkpoint.h5"), "r") as f:
+        ck = dict(f.attrs)
+    frames = read_frames(b)
+    assert frames[0] == (ck["step"], ck["time"]) == read_frames(a)[-1]
+    first, start = by_id(read_frame(b, frames[0][0])), last_frame(a)
+    for key in ("id", "x", "v", "p"):
+        assert np.array_equal(first[key], start[key]), key
+    sb, sw = read_stats(os.path.join(b, "stats.csv")), read_stats(os.path.join(whole, "stats.csv"))
+    later = sw["step"] > ck["step"]
+    assert sb["step"][0] == ck["step"] + 1
+    for col in ("step", "time", "dt", "kinetic_energy"):
+        assert np.array_equal(sb[col], sw[col][later]), col
+    end, straight = last_frame(b), last_frame(whole)
+    for key in ("id", "x", "v", "p", "rho"):
+        assert np.array_equal(end[key], straight[key]), key
+
+
+def test_branch_replaces_another_run_in_its_directory(comm, mpi_tmp_path):
+    """A branch into a directory that holds an older run writes a new run there (as any
+    run does), no frame or stats row of the old one left."""
+    src, dst = os.path.join(mpi_tmp_path, "src"), os.path.join(mpi_tmp_path, "dst")
+    run(_scene(comm, mpi_tmp_path, ["run.end_time=0.1"]), src, comm=comm, progress=False)
+    run(_scene(comm, mpi_tmp_path, ["run.end_time=0.3"]), dst, comm=comm, progress=False)
+    run(_scene(comm, mpi_tmp_path, ["run.end_time=0.2"]), dst, comm=comm, progress=False,
+        restart=os.path.join(src, "checkpoint.h5"))
+    if comm.rank == 0:
+        from parsph.io import read_frames, read_stats
+
+        with h5py.File(os.path.join(src, "checkpoint.h5"), "r") as f:
+            step = f.attrs["step"]
+        assert read_frames(dst)[0][0] == step
+        assert read_stats(os.path.join(dst, "stats.csv"))["step"][0] == step + 1
+        assert read_frames(dst)[-1][1] < 0.3
+
+
+def test_same_directory():
+    from parsph.run import same_directory
+
+    assert same_directory("runs/A/checkpoint.h5", "runs/A/")
+    assert same_directory("runs/A/checkpoint.h5", "runs/B/../A")
+    assert not same_directory("runs/A/checkpoint.h5", "runs/B")
+
+
 def test_preemption_waits_for_a_sync_step_and_restarts_bit_for_bit(comm, mpi_tmp_path,
                                                                     monkeypatch):
     """SIGUSR1 on rank 0 after step 5 of a dam break (a sync step every 4 steps, the PPE's
@@ -175,8 +248,7 @@ def test_preemption_waits_for_a_sync_step_and_restarts_bit_for_bit(comm, mpi_tmp
     from parsph.errors import Preempted
 
     cut, whole = os.path.join(mpi_tmp_path, "cut"), os.path.join(mpi_tmp_path, "whole")
-    scene = load_scene("dam_break", ["domain.particle_size=0.0146", "output.every=0.01",
-                                     "output.progress=false", "run.end_time=0.04"])
+    scene = load_scene("dam_break", BRANCH + ["run.end_time=0.04"])
     inject = faults.inject_nan
 
     def signal_at_step_5(ctx):
