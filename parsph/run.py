@@ -436,15 +436,17 @@ def _build(scene, out, comm, petsc_args, restart):
     if comm.rank == 0:
         for text in geometry_warnings(scene):
             log.warning(text)
+    # a checkpoint is checked before anything is written: a refused restart or branch
+    # leaves no new directory behind
+    ck = checkpoint.read(restart, comm, scene) if restart is not None else None
     prepare_output(comm, out)
     dim, d = scene.domain.dim, scene.domain.particle_size
     h = smoothing_length(d)
     box = Box(tuple(scene.domain.lo), tuple(scene.domain.hi), tuple(scene.domain.periodic))
-    if restart is None:
-        fields, ck = generate(comm, scene), None
+    if ck is None:
+        fields = generate(comm, scene)
         fields["X"] = fields["x"].copy()  # reference configuration (section 3)
     else:
-        ck = checkpoint.read(restart, comm, scene)
         fields = ck.fields
     particles = ParticleSet(dim, fields)
     for name in ("eps_p", "p", "porosity"):  # written to every frame (zeros if unused)

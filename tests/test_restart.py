@@ -101,6 +101,7 @@ def test_bad_restart_files(comm, mpi_tmp_path):
     for path, scn, words in cases:
         with pytest.raises(ParsphError, match=words):
             run(scn, os.path.join(mpi_tmp_path, "again"), comm=comm, progress=False, restart=path)
+    assert not os.path.exists(os.path.join(mpi_tmp_path, "again"))  # nothing was written
     # the good checkpoint is untouched by the failed attempts
     assert h5py.File(good, "r").attrs["step"] > 0
     if comm.rank == 0:
