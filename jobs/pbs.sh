@@ -4,8 +4,8 @@
 #   qsub -v SCENE=slope_failure,OUT=/scratch/$USER/parsph/slope jobs/pbs.sh
 #
 # PBS sends SIGTERM some time (kill_delay) before killing a job at its limit or on
-# pre-emption; parsph then finishes the step, writes OUT/checkpoint.h5 and exits with 4,
-# and the script asks PBS to run the job again (it is re-runnable: -r y), restarting from it.
+# pre-emption; parsph then goes on to the next sync step, writes OUT/checkpoint.h5 and
+# exits with 4, and the script asks PBS to run the job again (it is re-runnable: -r y), restarting from it.
 #PBS -N parsph
 #PBS -l select=2:ncpus=32:mpiprocs=32
 #PBS -l walltime=04:00:00

@@ -2,8 +2,9 @@
 
 Layout of ``checkpoint.h5``::
 
-    /           attrs: format, parsph_version, scene, scene_physics (hash), dim, ranks,
-                       time, step, next_frame, last_frame_step, next_checkpoint
+    /           attrs: format, parsph_version, scene, scene_physics (hash),
+                       scene_physics_keys (a hash per table), dim, ranks, time, step,
+                       next_frame, last_frame_step, next_checkpoint
     /counts     (ranks,) int64      owned rows of each rank when written
     /fields/F   (N, ...)            every per-particle field, rows in rank order
     /rcb/...                        the partition (decomposition.partition.RCB arrays)
@@ -15,9 +16,11 @@ Writes are collective with parallel HDF5 (each rank writes its rows independentl
 the offset of an exclusive prefix sum) into ``checkpoint.h5.tmp``; rank 0 then renames it
 over ``checkpoint.h5`` (atomic on POSIX), so an interrupted write never replaces the last
 good checkpoint. On restart at the same rank count each rank reads back exactly its own
-rows and the stored partition, so the continued run is bit-for-bit the uninterrupted
-one. At another rank count the rows are split evenly and re-partitioned (the result then
-agrees to round-off and solver tolerance).
+rows and the stored partition, and every checkpoint falls on a sync step (where the
+uninterrupted run sets its preconditioners up afresh too, :mod:`parsph.run`), so the
+continued run is bit-for-bit the uninterrupted one. At another rank count the rows are
+split evenly and re-partitioned (the result then agrees to round-off and solver
+tolerance).
 """
 from __future__ import annotations
 
@@ -40,13 +43,34 @@ FORMAT = 1
 FILE_NAME = "checkpoint.h5"
 
 
+#: Scene fields a restart or a branch may change (and the ones that are no settings).
+FREE = {"run", "output", "probes", "study", "source", "data"}
+
+
+def _physics_parts(scene) -> list[tuple[str, str]]:
+    return [(f.name, f"{f.name}={getattr(scene, f.name)!r}") for f in dataclasses.fields(scene)
+            if f.name not in FREE]
+
+
 def physics_hash(scene) -> str:
     """A hash of the scene keys a restart must not change (all but ``run``, ``output``,
     ``probes`` and ``study``, which are no physics)."""
-    skip = {"run", "output", "probes", "study", "source", "data"}
-    parts = [f"{f.name}={getattr(scene, f.name)!r}" for f in dataclasses.fields(scene)
-             if f.name not in skip]
+    parts = [text for _, text in _physics_parts(scene)]
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:16]
+
+
+def physics_keys(scene) -> str:
+    """``section=hash`` of each table :func:`physics_hash` covers, comma-separated: lets a
+    refused restart name the tables that differ."""
+    return ",".join(f"{name}={hashlib.sha256(text.encode()).hexdigest()[:12]}"
+                    for name, text in _physics_parts(scene))
+
+
+def _changed_tables(stored: str, scene) -> list[str]:
+    """Tables whose hash in ``stored`` (:func:`physics_keys`) differs from ``scene``'s."""
+    old = dict(item.split("=", 1) for item in stored.split(",") if "=" in item)
+    new = dict(item.split("=", 1) for item in physics_keys(scene).split(","))
+    return sorted(k for k in set(old) | set(new) if old.get(k) != new.get(k))
 
 
 def _open(path, mode, comm):
@@ -141,10 +165,15 @@ def _check_header(path: str, scene) -> dict:
         raise ParsphError(f"restart file '{path}' is from scene '{attrs.get('scene')}', not "
                           f"'{scene.name}'; restart with the scene that wrote it")
     if attrs.get("scene_physics") != physics_hash(scene):
-        raise ParsphError(f"restart file '{path}' was written with other scene settings: on "
-                          f"restart only run.*, output.*, study.* and [[probes]] keys may "
-                          f"change (domain, materials, bodies, walls, gravity, solid and fluid "
-                          f"must be as before)")
+        stored = attrs.get("scene_physics_keys")
+        tables = _changed_tables(str(stored), scene) if stored is not None else []
+        what = (f"[{'], ['.join(tables)}] differ{'s' if len(tables) == 1 else ''}; "
+                if tables else "")
+        raise ParsphError(f"restart file '{path}' was written with other scene settings: "
+                          f"{what}a restart or a branch (--restart FILE --out DIR) may change "
+                          f"only run.*, output.*, study.* and [[probes]] keys (domain, "
+                          f"materials, bodies, walls, gravity, solid and fluid must be as "
+                          f"before); start a new run to change the others")
     missing = {"id", "x", "v", "m", "phase", "material", "X"} - names
     if missing:
         raise ParsphError(f"restart file '{path}' lacks fields {sorted(missing)}; it is damaged")

@@ -41,7 +41,8 @@ def _parser() -> _Parser:
     r.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                    help="override a scene key, e.g. --set domain.particle_size=0.01")
     r.add_argument("--restart", default=None, metavar="FILE",
-                   help="continue from DIR/checkpoint.h5 (output goes on in DIR unless --out)")
+                   help="start from DIR/checkpoint.h5: continue that run in DIR, or with "
+                   "--out NEW branch it into a new run directory (DIR left untouched)")
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
     r.add_argument("-v", "--verbose", action="store_true", help="debug logging on rank 0")
     c = sub.add_parser("check", help="print stages, particle counts per rank and memory")

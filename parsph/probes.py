@@ -380,23 +380,25 @@ class ProbeOutput:
     duplicate rows (:class:`parsph.io.probes.ProbeWriter`).
     """
 
-    def __init__(self, ctx):
+    def __init__(self, ctx, continuing=None):
         from decomposition import collective
         from parsph.io.probes import ProbeWriter, remove_stale
 
         scene, comm = ctx.scene, ctx.comm
+        # a restart in its own directory continues probes.csv; a branch starts its own
+        resumed = ctx.restarted if continuing is None else continuing
         self.sampler = Sampler(scene, ctx.box, ctx.h) if scene.probes else None
         self.writer = None
         with collective(comm):
             if self.sampler is None:
-                if comm.rank == 0 and not ctx.restarted:
+                if comm.rank == 0 and not resumed:
                     remove_stale(ctx.out)
                 return
             for it in self.sampler.items:
-                it.rewind(ctx.time, fresh=not ctx.restarted)
+                it.rewind(ctx.time, fresh=not resumed)
             if comm.rank == 0:
                 self.writer = ProbeWriter(ctx.out, self.sampler.items, ctx.dim,
-                                          resume_time=ctx.time if ctx.restarted else None)
+                                          resume_time=ctx.time if resumed else None)
 
     def sample_due(self, ctx) -> None:
         """Collective: sample the probes due at ``ctx.time`` (every rank calls this)."""

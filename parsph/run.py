@@ -2,13 +2,24 @@
 
 One step (see DESIGN.md, "One time step, as data flow")::
 
-    dt = min over stages of their limit (eq. 49), clipped to the next frame time
+    dt = min over stages of their limit (eq. 49)      (never clipped: see below)
     stage.step(ctx, dt) for each physics stage        (positions move last)
     check: NaN/inf, particles leaving the domain      (collective, one message)
     migrate to owners (re-partition when unbalanced), refresh halo, neighbour lists
     stage.after_refresh(ctx) for diagnostic stages    (e.g. density, eq. 33)
-    stats.csv row; frame when due; probes when due; checkpoint when due
-    SIGTERM/SIGUSR1 seen by any rank: checkpoint on every rank, stop (exit status 4)
+    stats.csv row; frame when due; probes when due; checkpoint when due (at a sync step)
+    SIGTERM/SIGUSR1 seen by any rank: checkpoint on every rank at the next sync step,
+    stop (exit status 4)
+
+Output never changes the result: the step sequence depends on the physics and the
+numerics only, never on ``output.every``, ``output.checkpoint_every``, the probes or
+``run.end_time``. A frame is written at the first step at or after its time (with the
+time reached), and a run stops at the first *sync step* at or after ``run.end_time``.
+Sync steps are every ``fluid.preconditioner_reuse`` steps in scenes with an implicit
+fluid (every step otherwise): there stray particles move to their owners and the PPE's
+next solve sets its preconditioner up afresh, as in a run restarted from there. Every
+checkpoint is written at a sync step, so a run restarted or branched from any checkpoint
+continues the uninterrupted run's steps bit for bit (docs/reliability.md).
 """
 from __future__ import annotations
 
@@ -66,9 +77,12 @@ class Context:
     #: Lagged migration (current layout with a fluid): an owned particle may stray this
     #: far (m) beyond its rank's sub-box before it must move; the halo is this much wider.
     skin: float = 0.0
-    #: ... and strays move every this many steps (when the AMG set-up is renewed) and at
-    #: every sync point (a frame, a checkpoint or the end: see :func:`run`).
+    #: ... and strays move every this many steps (when the AMG set-up is renewed).
     migrate_every: int = 1
+    #: Sync steps (``step % sync_every == 0``): strays move to their owners and the PPE's
+    #: next solve sets up afresh; checkpoints and the end of a run fall on them (see
+    #: :func:`run`). ``fluid.preconditioner_reuse`` with an implicit fluid, else 1.
+    sync_every: int = 1
     sync_point: bool = False
 
     @property
@@ -273,29 +287,41 @@ def refresh(ctx, force_partition: bool = False) -> None:
 
 
 def _renew_preconditioners(stages) -> None:
-    """At a sync point: the next solves set their preconditioners up afresh, as a run
+    """At a sync step: the next solves set their preconditioners up afresh, as a run
     restarted from a checkpoint written here does, so that the restart is bit for bit."""
     for s in stages:
         if hasattr(s, "renew_preconditioners"):
             s.renew_preconditioners()
 
 
-def _time_step(ctx, stages, next_frame: float, end: float) -> float:
+def _time_step(ctx, stages, end: float) -> float:
+    """``run.dt``, or the smallest limit of the stages (eq. 49).
+
+    Never clipped, neither to frame or checkpoint times nor to ``end``: the steps of a
+    run are the same whatever its output schedule and end time, so a longer run, or one
+    restarted from any checkpoint, goes through the same states bit for bit. (Clipping
+    also made slivers: a step of 1e-3 dt makes the projection's pressure, the divergence
+    over dt, a spike.) Only when nothing limits the step (no stage does, or everything is
+    at rest without gravity) does ``end`` set it: one step to the end.
+    """
     fixed = ctx.scene.run.dt
     dt = fixed if fixed > 0 else min([s.max_dt(ctx) for s in stages] + [math.inf])
     if not math.isfinite(dt):
-        dt = ctx.scene.output.every
-    # Land exactly on frame times and the end time, without a sliver of a step: when
-    # the target is between one and two steps away, two equal steps. A step of 1e-3 dt
-    # would make the projection's pressure (the divergence over dt) a spike, and it is the
-    # pressure the frame records (hydrostatic at d = 0.05: 2 rho g H at the floor).
-    target = min(next_frame, end)
-    remaining = target - ctx.time
-    if dt > remaining - 1e-12 * max(1.0, target):
-        dt = remaining
-    elif dt < remaining < 2.0 * dt:
-        dt = 0.5 * remaining
+        dt = end - ctx.time if end > ctx.time else end
     return dt
+
+
+def _next_time(t: float, every: float) -> float:
+    """The first multiple of ``every`` after ``t`` (s): the next frame or checkpoint time.
+    A multiple within 1e-9 ``every`` of ``t`` counts as reached."""
+    return (math.floor(t / every + 1e-9) + 1) * every
+
+
+def same_directory(restart: str, out: str) -> bool:
+    """Whether ``out`` is the directory of the checkpoint ``restart`` (then the restart
+    continues that run there; otherwise it starts a new run directory, a branch)."""
+    here = os.path.dirname(os.path.abspath(restart))
+    return os.path.realpath(here) == os.path.realpath(out)
 
 
 def kinetic_energy(ctx) -> tuple[float, float]:
@@ -410,15 +436,17 @@ def _build(scene, out, comm, petsc_args, restart):
     if comm.rank == 0:
         for text in geometry_warnings(scene):
             log.warning(text)
+    # a checkpoint is checked before anything is written: a refused restart or branch
+    # leaves no new directory behind
+    ck = checkpoint.read(restart, comm, scene) if restart is not None else None
     prepare_output(comm, out)
     dim, d = scene.domain.dim, scene.domain.particle_size
     h = smoothing_length(d)
     box = Box(tuple(scene.domain.lo), tuple(scene.domain.hi), tuple(scene.domain.periodic))
-    if restart is None:
-        fields, ck = generate(comm, scene), None
+    if ck is None:
+        fields = generate(comm, scene)
         fields["X"] = fields["x"].copy()  # reference configuration (section 3)
     else:
-        ck = checkpoint.read(restart, comm, scene)
         fields = ck.fields
     particles = ParticleSet(dim, fields)
     for name in ("eps_p", "p", "porosity"):  # written to every frame (zeros if unused)
@@ -430,6 +458,8 @@ def _build(scene, out, comm, petsc_args, restart):
     reuse = scene.fluid.preconditioner_reuse
     if lay == "current" and reuse > 1 and any(s.name == "iisph" for s in specs):
         ctx.skin, ctx.migrate_every = 0.5 * d, reuse
+    if uses_petsc(specs):  # the PPE's lagged preconditioner is renewed every `reuse` steps
+        ctx.sync_every = max(1, reuse)
     if ck is not None:
         ctx.time, ctx.step = float(ck.meta["time"]), int(ck.meta["step"])
         ctx.rcb = ck.rcb  # None at another rank count: re-partitioned below
@@ -457,14 +487,18 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
     """Run a validated scene; write ``out/particles.h5``, ``.xdmf``, ``stats.csv`` and
     ``checkpoint.h5``.
 
-    Collective over ``comm`` (default: the world). ``restart`` continues from a checkpoint
-    (bit-for-bit the uninterrupted run at the same rank count). Returns a summary (steps,
-    time, wall seconds, particle count).
+    Collective over ``comm`` (default: the world). ``restart`` starts from a checkpoint:
+    in its own directory the run continues there (frames appended, ``stats.csv`` kept up
+    to the checkpoint's step); in another ``out`` it is a branch, a new run directory
+    whose first frame is the checkpoint's state, the checkpoint's directory untouched.
+    Either way the steps are those of the uninterrupted run (bit for bit at the same rank
+    count). Returns a summary (steps, time, wall seconds, particle count).
 
     Raises
     ------
     Preempted
-        After SIGTERM/SIGUSR1: the step in progress finished and a checkpoint was written.
+        After SIGTERM/SIGUSR1: the run went on to the next sync step (at most
+        ``fluid.preconditioner_reuse - 1`` steps later) and wrote a checkpoint there.
     NumericalError
         NaN/inf, a particle out of the domain, a failed solve: the frames and checkpoint
         already written are kept.
@@ -478,11 +512,16 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
     comm = comm or world()
     wall0 = time.perf_counter()
     ctx, specs, stages, ck = _build(scene, out, comm, petsc_args, restart)
+    continuing = ck is not None and same_directory(restart, out)
     particles, dim, d = ctx.particles, ctx.dim, ctx.d
     n_total = int(global_sum(comm, particles.n_owned))
+    if ck is None:
+        origin = ""
+    else:
+        origin = (f"; {'restarted' if continuing else f'branched from {restart}'} at "
+                  f"t = {ctx.time:.6g} s, step {ctx.step}")
     log.info("scene '%s': %d particles on %d rank(s), stages: %s%s", scene.name, n_total,
-             comm.size, ", ".join(s.name for s in specs),
-             f"; restarted at t = {ctx.time:.6g} s, step {ctx.step}" if ck else "")
+             comm.size, ", ".join(s.name for s in specs), origin)
     h5 = os.path.join(out, "particles.h5")
     xdmf = os.path.join(out, "particles.xdmf")
     ck_path = os.path.join(out, checkpoint.FILE_NAME)
@@ -493,15 +532,11 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
     end = scene.run.end_time
     every = scene.output.every
     ck_every = scene.output.checkpoint_every
-    if ck is None:
-        frame_index, last_frame_step, next_ck = 1, 0, ck_every
-    else:
-        # from the time, not the saved counters: output.every and checkpoint_every may
-        # differ in the restarted run
-        frame_index = int(math.floor(ctx.time / every + 1e-9)) + 1
-        last_frame_step = int(ck.meta["last_frame_step"])
-        next_ck = (math.floor(ctx.time / ck_every + 1e-9) + 1) * ck_every if ck_every > 0 \
-            else float(ck.meta["next_checkpoint"])
+    # the output schedule follows the time reached (output.every and checkpoint_every may
+    # differ in a restarted run): frames and checkpoints due at or before it are done
+    next_frame = _next_time(ctx.time, every) if ck is not None else every
+    next_ck = _next_time(ctx.time, ck_every) if ck_every > 0 else math.inf
+    last_frame_step = int(ck.meta["last_frame_step"]) if continuing else -1
 
     def write_frame():
         t0 = time.perf_counter()
@@ -511,37 +546,47 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
 
     def write_checkpoint():
         meta = {"scene": scene.name, "scene_physics": checkpoint.physics_hash(scene),
-                "dim": dim, "time": ctx.time, "step": ctx.step, "frame_index": frame_index,
+                "scene_physics_keys": checkpoint.physics_keys(scene),
+                "dim": dim, "time": ctx.time, "step": ctx.step, "next_frame": next_frame,
                 "last_frame_step": last_frame_step, "next_checkpoint": next_ck,
                 "elastic_energy": last["ee"]}
         states = {s.name: s.state() for s in stages if hasattr(s, "state")}
         checkpoint.write(ck_path, comm, particles, ctx.rcb, meta, states,
                          fault=faults.checkpoint_fault(ctx.step), rcb_ref=ctx.rcb_ref)
 
+    def at_sync_step():
+        return ctx.step % ctx.sync_every == 0
+
+    def finished():
+        return ctx.time >= end - 1e-12 * end and at_sync_step()
+
     show = scene.output.progress if progress is None else progress
     bar = Progress(end, enabled=show and comm.rank == 0)
-    mode = "a" if ck is not None else "w"
-    if ck is not None and comm.rank == 0:
+    mode = "a" if continuing else "w"
+    if continuing and comm.rank == 0:
         _truncate_stats(os.path.join(out, "stats.csv"), ctx.step)
     with FrameWriter(h5, comm, dim, attrs=attrs, xdmf=xdmf, mode=mode) as writer, \
             StatsWriter(os.path.join(out, "stats.csv"), stats_columns(stages),
                         enabled=comm.rank == 0, mode=mode) as stats, _StopRequest() as stop, \
-            ProbeOutput(ctx) as probes:
-        if ck is None:
-            write_frame()
-        probes.sample_due(ctx)  # t = 0 (a restart goes on at the next sample time)
+            ProbeOutput(ctx, continuing) as probes:
+        if continuing:
+            writer.drop_frames_after(ctx.step)  # left by a run killed after the checkpoint
+        else:
+            write_frame()  # frame 0: the initial state, or the checkpoint's (a branch)
+            last_frame_step = ctx.step
+        probes.sample_due(ctx)  # t = 0 or a branch's start (a restart goes on at the next)
         # the energy budget of each step (stats.csv energy_bound, energy_ratio) needs the
         # kinetic and elastic energy before it: of the initial state, or the checkpoint's
         last = {"ke": kinetic_energy(ctx)[0],
                 "ee": float(ck.meta.get("elastic_energy", 0.0)) if ck is not None else 0.0}
         max_steps = scene.run.max_steps
-        while scene.run.mode != "geometry" and ctx.time < end - 1e-12 * end:
+        stopping = False
+        while scene.run.mode != "geometry" and not finished():
             if max_steps and ctx.step >= max_steps:
                 break
             for name in ctx.timers:
                 ctx.timers[name] = 0.0
-            next_frame = frame_index * every
-            dt = _time_step(ctx, stages, next_frame, end)
+            dt = _time_step(ctx, stages, end)
             for s in stages:
                 if hasattr(s, "step"):
                     _timed(ctx, s.name, s.step, ctx, dt)
@@ -549,11 +594,9 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
             ctx.step += 1
             faults.inject_nan(ctx)
             _check_state(ctx)
-            # frames, checkpoints and the end are sync points: every stray particle moves
-            # to its owner and the next solves set up afresh, as after a restart from here
-            ctx.sync_point = (ctx.time >= next_frame - 1e-9 * every
-                              or ctx.time >= end - 1e-12 * end
-                              or (ck_every > 0 and ctx.time >= next_ck - 1e-9 * ck_every))
+            # a sync step: every stray particle moves to its owner and the next solves
+            # set up afresh, as after a restart from here
+            ctx.sync_point = at_sync_step()
             refresh(ctx)
             if ctx.sync_point:
                 _renew_preconditioners(stages)
@@ -563,7 +606,7 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
             if ctx.time >= next_frame - 1e-9 * every:
                 write_frame()
                 last_frame_step = ctx.step
-                frame_index += 1
+                next_frame = _next_time(ctx.time, every)
             probes.sample_due(ctx)
             row = _stats_row(ctx, dt, stages)
             g = max(float(np.linalg.norm(ctx.body_acceleration(t)))
@@ -575,11 +618,11 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
             last.update(ke=row["kinetic_energy"], ee=ee)
             stats.write(row)
             bar.update(ctx.time, ctx.step)
-            if ck_every > 0 and ctx.time >= next_ck - 1e-9 * ck_every:
-                while next_ck <= ctx.time + 1e-9 * ck_every:
-                    next_ck += ck_every
+            if ctx.time >= next_ck - 1e-9 * ck_every and at_sync_step():
+                next_ck = _next_time(ctx.time, ck_every)
                 write_checkpoint()
-            if global_any(comm, stop.signal is not None):
+            stopping = stopping or global_any(comm, stop.signal is not None)
+            if stopping and at_sync_step():
                 write_checkpoint()
                 _finish(ctx, stages)
                 bar.close()

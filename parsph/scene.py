@@ -44,7 +44,9 @@ class Domain:
 
 @dataclass(frozen=True)
 class Run:
-    end_time: float = spec(doc="simulated end time (s)", gt=0.0)
+    end_time: float = spec(doc="simulated end time (s): the run stops at the first sync step "
+                           "at or after it (no step is shortened to land on it; "
+                           "docs/reliability.md)", gt=0.0)
     mode: str = spec("physics", doc="physics | kinematic (move with initial velocity, no "
                      "forces) | geometry (build, decompose, write frame 0, stop)",
                      choices=("physics", "kinematic", "geometry"))
@@ -57,8 +59,11 @@ class Run:
 
 @dataclass(frozen=True)
 class Output:
-    every: float = spec(doc="simulated seconds between frames", gt=0.0)
-    checkpoint_every: float = spec(0.0, doc="simulated seconds between checkpoints (0 = at end)",
+    every: float = spec(doc="simulated seconds between frames, each written at the first step "
+                        "at or after its time (with the time reached); the last step always "
+                        "has one; output never changes the steps", gt=0.0)
+    checkpoint_every: float = spec(0.0, doc="simulated seconds between checkpoints, each at the "
+                                   "first sync step at or after its time (0 = at the end only)",
                                    ge=0.0)
     progress: bool = spec(True, doc="progress bar on rank 0")
     front_direction: tuple[float, ...] = spec((), doc="direction (any length) along which "
@@ -329,9 +334,6 @@ def _cross_check(scn: Scene, source: str) -> None:
         _err(source, "domain.particle_size", f"{dom.particle_size} m is larger than the domain")
     if not scn.bodies and not scn.walls:
         _err(source, "bodies", "the scene has no bodies and no walls: nothing to simulate")
-    if scn.output.every > scn.run.end_time and scn.run.mode != "geometry":
-        _err(source, "output.every", f"{scn.output.every} s is longer than run.end_time "
-             f"{scn.run.end_time} s: no frame would be written after the first")
     names = set()
     for i, body in enumerate(scn.bodies):
         key = f"bodies[{i}]"

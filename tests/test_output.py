@@ -150,6 +150,14 @@ def test_append_replaces_step_and_bad_input(comm, mpi_tmp_path):
     if comm.rank == 0:
         assert read_frames(mpi_tmp_path) == [(0, 0.0), (1, 0.1), (2, 0.2)]
         assert np.all(read_frame(mpi_tmp_path, 1)["p"] == 7.0)
+    # a restart from the checkpoint of step 1 drops the frames a killed run wrote later
+    with FrameWriter(mpi_tmp_path, comm, 2, mode="a") as w:
+        w.drop_frames_after(1)
+        assert [fr.step for fr in w.frames] == [0, 1]
+        w.write_frame(3, 0.3, rows)
+    comm.Barrier()
+    if comm.rank == 0:
+        assert read_frames(mpi_tmp_path) == [(0, 0.0), (1, 0.1), (3, 0.3)]
 
 
 @pytest.mark.mpi

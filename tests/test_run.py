@@ -21,7 +21,8 @@ def test_kinematic_run_moves_and_conserves(comm, mpi_tmp_path, text):
     scene = _shared_scene(comm, mpi_tmp_path, text, "scene.toml")
     out = os.path.join(mpi_tmp_path, "out")
     summary = run(scene, out, comm=comm, progress=False)
-    assert summary["time"] == pytest.approx(scene.run.end_time)
+    end = summary["time"]  # the first step at or after run.end_time: no step is clipped
+    assert end >= scene.run.end_time
     if comm.rank == 0:
         steps = [s for s, _ in read_frames(os.path.join(out, "particles.h5"))]
         assert steps[0] == 0 and len(steps) == 3
@@ -29,7 +30,7 @@ def test_kinematic_run_moves_and_conserves(comm, mpi_tmp_path, text):
         last = by_id(read_frame(os.path.join(out, "particles.h5"), steps[-1]))
         assert np.array_equal(first["id"], last["id"])  # no particle lost or duplicated
         # positions moved by v t, wrapped into the periodic box
-        moved = first["x"] + scene.run.end_time * first["v"]
+        moved = first["x"] + end * first["v"]
         lo, hi = np.array(scene.domain.lo), np.array(scene.domain.hi)
         for ax, per in enumerate(scene.domain.periodic):
             if per:
@@ -40,7 +41,7 @@ def test_kinematic_run_moves_and_conserves(comm, mpi_tmp_path, text):
             rows = list(csv.DictReader(fh))
         assert len(rows) == summary["steps"]
         assert all(int(r["n_particles"]) == len(first["id"]) for r in rows)
-        assert float(rows[-1]["time"]) == pytest.approx(scene.run.end_time)
+        assert float(rows[-1]["time"]) == end < scene.run.end_time + float(rows[-1]["dt"])
 
 
 @pytest.mark.mpi
@@ -87,7 +88,7 @@ def test_a_rank_without_particles(comm, mpi_tmp_path):
                                       "bodies.1.vertices=[[1.0, 0.0], [1.05, 0.0], [1.0, 0.05]]"])
     summary = run(scene, os.path.join(mpi_tmp_path, "out"), comm=comm, progress=False)
     assert summary["particles"] <= 3
-    assert summary["time"] == pytest.approx(scene.run.end_time)
+    assert summary["time"] >= scene.run.end_time
 
 
 ONLY_WHAT_IS_NEEDED = [

@@ -50,7 +50,6 @@ BAD = [
     ({"set": "run.mode=fast"}, ["run.mode", "physics"]),
     ({"set": "run.end_time=0"}, ["run.end_time", "> 0.0"]),
     ({"set": "output.every=-0.1"}, ["output.every"]),
-    ({"set": "output.every=5"}, ["output.every", "end_time"]),
     ({"set": "domain.lo=[0, 0, 0]"}, ["domain.lo", "2 numbers"]),
     ({"set": "domain.hi=[-1, 1]"}, ["domain.hi", "above"]),
     ({"set": "bodies.0.material=mud"}, ["bodies[0].material", "mud", "sand"]),
@@ -88,6 +87,12 @@ def test_bad_scene_gives_one_clear_message(tmp_path, edit, words):
     for word in words:
         assert word in message, message
     assert "\n" not in message.strip()
+
+
+def test_a_frame_interval_longer_than_the_run_is_fine(tmp_path):
+    """The run then writes frame 0 and its last state (tests/test_output_schedule.py)."""
+    scn = load_scene(write(tmp_path, MOVING_2D), ["output.every=5"])
+    assert scn.output.every > scn.run.end_time
 
 
 def test_unknown_scene_and_missing_file():

@@ -241,6 +241,16 @@ class FrameWriter:
             self._file = None
 
     # -- writing ---------------------------------------------------------------------
+    def drop_frames_after(self, step: int) -> None:
+        """Collective: delete the frames after ``step`` (those a run killed after its last
+        checkpoint left behind, before a restart from that checkpoint writes its own)."""
+        later = [fr.step for fr in self.frames if fr.step > int(step)]
+        for s in later:
+            del self._file[frame_name(s)]
+        if later:
+            self._file.flush()
+            self.frames = [fr for fr in self.frames if fr.step <= int(step)]
+
     def _prepare(self, fields: dict) -> tuple[int, dict[str, np.ndarray]]:
         """Local checks and casts: (n_local, {name: C-contiguous array}) in schema order."""
         if not isinstance(fields, dict):
