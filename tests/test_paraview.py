@@ -11,6 +11,7 @@ phase, arrows of velocity) renders the run. Skipped only where ``pvbatch`` is no
 installed (scripts/setup.sh installs it).
 """
 import os
+import re
 import shutil
 import subprocess
 
@@ -71,7 +72,11 @@ def _pvbatch(script, *args, timeout=300):
     env = {k: v for k, v in os.environ.items()
            if not k.startswith(("OMPI_", "PMIX_", "PMI_", "OPAL_", "HYDRA_"))}
     cmd = ([XVFB_RUN, "-a"] if XVFB_RUN else []) + [PVBATCH, script, *args]
-    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
+    for _ in range(3):  # an X server that did not come up is retried, nothing else
+        r = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
+        if r.returncode == 0 or not re.search(r"X server|display", r.stderr, re.I):
+            return r
+    return r
 
 
 SCENES = {

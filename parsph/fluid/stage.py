@@ -363,8 +363,9 @@ class IISPH:
         self._halo(ctx, ["v_star"])
 
         t0 = time.perf_counter()
-        # a step cut short to land on a frame time would amplify the density term of
-        # eq. (32) by (dt_cfl / dt)^2: alpha is rescaled so the correction is per CFL step
+        # a step shorter than the CFL step (a fixed run.dt, a solid-limited coupled step)
+        # would amplify the density term of eq. (32) by (dt_cfl / dt)^2: alpha is
+        # rescaled so the correction is per CFL step
         alpha = self.num.alpha * min(1.0, (dt / self._dt_cfl) ** 2) if self._dt_cfl > 0 \
             else self.num.alpha
         ptr, cols, vals = self._csr_buffers(ppe, indptr[n] + n)
