@@ -19,7 +19,7 @@ __all__ = ["wall_contact"]
 
 
 @njit(cache=True)
-def wall_contact(x, v, rows, vrows, wall, vw, indptr, indices, h, d, dim, mu, push, dt=0.0):
+def wall_contact(x, v, rows, vrows, wall, vw, indptr, indices, h, d, dim, mu, push):
     r"""Non-penetration and Coulomb friction against boundary particles, in place on ``v``.
 
     For each ``k``, the particle at ``x[rows[k]]`` (velocity ``v[vrows[k]]``) against its
@@ -40,15 +40,6 @@ def wall_contact(x, v, rows, vrows, wall, vw, indptr, indices, h, d, dim, mu, pu
       reverse the slip). ``push[k]`` is a velocity change of this step by which the
       boundary already holds the particle (the fluid's pressure impulse; zero for the
       solid).
-
-    With ``dt > 0`` the contact is speculative (as the speculative contacts of rigid-body
-    engines, e.g. Box2D):
-    a particle short of contact may approach by at most what closes its gap to ``d``
-    within the step, :math:`v_n \ge -(\delta - d)/\Delta t`, so it lands at the contact
-    distance instead of sinking in; a particle that sank in is thrown out by the density
-    term of the pressure solve, and a lone particle on a floor kept bouncing that way
-    (``bingham_slump``: up to 0.3 m/s at 4 s). ``dt = 0`` (the solid's call) checks
-    contact at the current gap only.
 
     Returns the number of particles in contact.
     """
@@ -96,13 +87,7 @@ def wall_contact(x, v, rows, vrows, wall, vw, indptr, indices, h, d, dim, mu, pu
             for a in range(dim):
                 g += (x[r, a] - x[j, a]) * nv[a]
             gap = min(gap, g)
-        # speculative (dt > 0): the approach is limited to what closes the gap to d
-        # within the step, so the particle lands at the contact distance instead of
-        # sinking in and being thrown out by the density term of the pressure solve
-        reach = 0.0
-        if dt > 0.0:
-            reach = max(gap - d, 0.0) / dt
-        elif gap >= d * (1.0 + 1e-6):
+        if gap >= d * (1.0 + 1e-6):
             continue
         vn = 0.0
         pn = 0.0
@@ -110,16 +95,16 @@ def wall_contact(x, v, rows, vrows, wall, vw, indptr, indices, h, d, dim, mu, pu
             vr[a] = v[i, a] - vb[a]
             vn += vr[a] * nv[a]
             pn += push[k, a] * nv[a]
-        if vn >= -reach and (pn <= 0.0 or gap >= d * (1.0 + 1e-6)):
+        if vn >= 0.0 and pn <= 0.0:
             continue
         count += 1
         dvn = max(pn, 0.0)
-        if vn < -reach:
-            dvn -= vn + reach
+        if vn < 0.0:
+            dvn -= vn
             for a in range(dim):
-                v[i, a] -= (vn + reach) * nv[a]
-                vr[a] -= (vn + reach) * nv[a]
-            vn = -reach
+                v[i, a] -= vn * nv[a]
+                vr[a] -= vn * nv[a]
+            vn = 0.0
         vt2 = 0.0
         for a in range(dim):
             vt2 += (vr[a] - vn * nv[a]) ** 2

@@ -265,6 +265,7 @@ def test_viscous_exchange_between_phases_conserves_momentum():
 
 # ------------------------------------------------------------------ coupled runs
 
+@pytest.mark.mpi(min_size=2)  # the 2-rank session (CI time: the same physics on 1 rank)
 def test_block_in_water_feels_its_buoyancy(comm, mpi_tmp_path):
     """A held TLSPH block in water at rest: the fluid's net force on it (eq. 45) is
     rho_w g V upward (Archimedes), within 2 % in every window of 0.3-0.5 s up to 2 s. With
@@ -290,6 +291,7 @@ def test_block_in_water_feels_its_buoyancy(comm, mpi_tmp_path):
         assert np.abs(f["v"][f["phase"] == 1]).max() < 0.05  # water at rest
 
 
+@pytest.mark.mpi(min_size=2)  # the 2-rank session (CI time: the same physics on 1 rank)
 def test_fluid_does_not_pass_through_a_tlsph_floor(comm, mpi_tmp_path):
     """A water column collapses along a held TLSPH plate that is its only floor and hits
     the far wall: no fluid particle gets into or below the plate."""

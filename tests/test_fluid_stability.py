@@ -78,7 +78,10 @@ def test_long_hydrostatic_run_stays_at_rest(comm, mpi_tmp_path):
         d = scene.domain.particle_size
         scale = math.sqrt(9.81 * 1.0)
         frames = list(_frames(out))
-        assert frames[-1][0] == pytest.approx(20.0)
+        # the run stops at the first sync step at or after run.end_time
+        dt = max(float(r["dt"]) for r in _stats(out))
+        reuse = scene.fluid.preconditioner_reuse
+        assert 20.0 <= frames[-1][0] <= 20.0 + reuse * dt * (1 + 1e-9)
         for _, f in frames:
             fl = f["phase"] == 1
             assert _inside_tank(f, (0.0, 0.0), (1.0, 1.2), 0.5 * d)
@@ -128,31 +131,6 @@ def test_lone_bingham_row_sinks_into_the_floor_without_the_contact(comm, mpi_tmp
         d = scene.domain.particle_size
         lowest = min(f["x"][:, 1][f["phase"] == 1].min() for _, f in frames)
         assert lowest < 0.45 * d  # below its resting height
-
-
-def test_lone_row_dropped_on_the_floor_lands_without_bouncing(comm, mpi_tmp_path):
-    """The contact is speculative (parsph.contact): a free-surface row falling from 0.1 m
-    may approach the floor only by what closes its gap within the step, so it lands at its
-    resting height d/2 and stays; with the contact checked only once it had sunk in, the
-    density term of the PPE threw it out and a lone particle of bingham_slump bounced at
-    up to 0.3 m/s."""
-    text = LONE_ROW.replace("lo = [0.0, 0.0]\nhi = [0.25, 0.05]\nvelocity = [1.0, 0.0]",
-                            "lo = [0.0, 0.1]\nhi = [0.25, 0.15]")
-    assert text != LONE_ROW
-    path = comm.bcast(write(mpi_tmp_path, text, "drop.toml") if comm.rank == 0 else None)
-    scene = load_scene(path, ["run.end_time=0.5", "output.every=0.02"])
-    out = os.path.join(mpi_tmp_path, "drop")
-    run(scene, out, comm=comm, progress=False)
-    if comm.rank == 0:
-        d = scene.domain.particle_size
-        frames = list(_frames(out))
-        landed = [(t, f) for t, f in frames if t > 0.2]  # free fall from 0.1 m: 0.14 s
-        for _, f in frames:
-            assert f["x"][:, 1][f["phase"] == 1].min() > 0.49 * d
-        for _, f in landed:
-            fl = f["phase"] == 1
-            assert np.all(np.abs(f["x"][fl, 1] - 0.5 * d) < 0.01 * d)
-            assert np.abs(f["v"][fl]).max() < 1e-3
 
 
 @pytest.mark.parametrize("divisions", [10, 14])

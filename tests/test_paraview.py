@@ -119,7 +119,9 @@ def test_paraview_reads_steps_points_and_velocity(comm, mpi_tmp_path, dim):
     assert summary["default"]["reader"] == "Xdmf3ReaderS"
 
     frames = read_frames(out)
-    assert len(frames) == 3
+    # 0, the first steps at or after 1 and 2 output intervals, and the last step (the
+    # first sync step at or after run.end_time) unless it is the second interval's
+    assert len(frames) in (3, 4)
     speeds = []
     for label, info in summary.items():
         assert info["times"] == [t for _, t in frames], label

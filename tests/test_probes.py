@@ -308,6 +308,31 @@ def test_restart_continues_probes_without_duplicates(comm, mpi_tmp_path):
         assert len(times) == 9 and times[0] == 0.0  # every 0.05 s to 0.4 s
 
 
+def test_a_branch_starts_its_own_probes(comm, mpi_tmp_path):
+    """--restart A/checkpoint.h5 --out B: B's probes.csv starts at the checkpoint's time
+    and then equals the uninterrupted run's rows; A's file is left as it was."""
+    path = comm.bcast(write(mpi_tmp_path, MOVING_2D + PROBES_2D) if comm.rank == 0 else None)
+    a, b, whole = (os.path.join(mpi_tmp_path, n) for n in ("a", "b", "whole"))
+    run(load_scene(path, ["run.end_time=0.2"]), a, comm=comm, progress=False)
+    with open(os.path.join(a, "probes.csv")) as fh:
+        before = fh.read()
+    run(load_scene(path), b, comm=comm, progress=False,
+        restart=os.path.join(a, "checkpoint.h5"))
+    run(load_scene(path), whole, comm=comm, progress=False)
+    if comm.rank == 0:
+        with open(os.path.join(a, "probes.csv")) as fh:
+            assert fh.read() == before
+        with open(os.path.join(b, "probes.csv")) as fh, \
+                open(os.path.join(whole, "probes.csv")) as gh:
+            rows_b, rows_w = fh.readlines(), gh.readlines()
+        assert rows_b[0] == rows_w[0]  # the header
+        start = min(float(r.split(",")[0]) for r in rows_b[1:])
+        assert start >= 0.2
+        assert [r for r in rows_b[1:] if float(r.split(",")[0]) > start] == \
+            [r for r in rows_w[1:] if float(r.split(",")[0]) > start]
+        assert os.path.exists(os.path.join(b, "probes_points.csv"))
+
+
 # --------------------------------------------------------------------------- bad input
 
 BAD = [

@@ -71,6 +71,7 @@ def test_stress_divergence_conserves_momentum():
 PLATE_H12 = 0.02 / 12  # particle size of the plate test: 12 particles across H
 
 
+@pytest.mark.mpi(min_size=2)  # the 2-rank session (CI time: the same physics on 1 rank)
 def test_elastic_plate_period_and_energy(comm, mpi_tmp_path):
     """Half a period of the clamped plate (d = H/12) vs 2D elasticity; energy bounded."""
     from parsph.solid.references import plate_period_error, plate_reference_period, \
