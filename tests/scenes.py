@@ -204,3 +204,14 @@ def dense_system(kernel, *args, n_points, dim=1):
         assert np.all(np.diff(c) > 0), f"row {r}: columns {c} not sorted and distinct"
         A[r, c] = vals[ptr[r]:ptr[r + 1]]
     return A, rhs
+
+
+def gather_particles(comm, fields):
+    """Every rank's (id, x, phase) of ``fields``, sorted by global id (all ranks)."""
+    import numpy as np
+
+    allf = comm.allgather({k: fields[k] for k in ("id", "x", "phase")})
+    ids = np.concatenate([f["id"] for f in allf])
+    order = np.argsort(ids)
+    return ids[order], np.concatenate([f["x"] for f in allf])[order], \
+        np.concatenate([f["phase"] for f in allf])[order]

@@ -7,21 +7,13 @@ from decomposition.reduce import global_sum
 from parsph.geometry import estimate_count, generate, wall_layers
 from parsph.materials import PHASE_WALL
 from parsph.scene import load_scene
-from tests.scenes import MOVING_2D, MOVING_3D, write
-
-
-def _gather(comm, fields):
-    allf = comm.allgather({k: fields[k] for k in ("id", "x", "phase")})
-    ids = np.concatenate([f["id"] for f in allf])
-    order = np.argsort(ids)
-    return ids[order], np.concatenate([f["x"] for f in allf])[order], \
-        np.concatenate([f["phase"] for f in allf])[order]
+from tests.scenes import MOVING_2D, MOVING_3D, gather_particles, write
 
 
 def test_tank_layers_and_counts(comm, tmp_path):
     scn = load_scene("hydrostatic")
     fields = generate(comm, scn)
-    ids, x, phase = _gather(comm, fields)
+    ids, x, phase = gather_particles(comm, fields)
     d = scn.domain.particle_size
     layers = wall_layers(scn, scn.walls[0])
     assert layers == 3  # ceil(2h/d) with h = 1.2 d
@@ -41,13 +33,13 @@ def test_tank_layers_and_counts(comm, tmp_path):
 
 def test_polygon_and_extruded_polygon_inside(comm, tmp_path):
     scn = load_scene(write(tmp_path, MOVING_2D))
-    ids, x, phase = _gather(comm, generate(comm, scn))
+    ids, x, phase = gather_particles(comm, generate(comm, scn))
     right = x[(x[:, 0] > 1.0) & (phase != PHASE_WALL)]
     # the slanted top edge from (1.2, 0.4) to (1.9, 0.6): nothing above it
     top = 0.4 + (right[:, 0] - 1.2) * (0.2 / 0.7)
     assert np.all(right[(right[:, 0] > 1.2), 1] < top[right[:, 0] > 1.2] + 1e-12)
     scn3 = load_scene(write(tmp_path, MOVING_3D, "s3.toml"))
-    ids3, x3, phase3 = _gather(comm, generate(comm, scn3))
+    ids3, x3, phase3 = gather_particles(comm, generate(comm, scn3))
     slab = x3[phase3 != PHASE_WALL]
     assert np.all(slab[:, 2] <= 0.6 * (1 - slab[:, 0] / 1.2) + 1e-12)
     assert set(np.round(slab[:, 1], 6)) == {round(0.05 + 0.1 * k, 6) for k in range(10)}
@@ -59,7 +51,7 @@ def test_heightmap_body(comm, tmp_path):
     text = MOVING_3D.replace('shape = "extruded_polygon"',
                              'shape = "heightmap"\ntop = "z.asc"\nbottom = 0.0')
     scn = load_scene(write(tmp_path, text))
-    ids, x, phase = _gather(comm, generate(comm, scn))
+    ids, x, phase = gather_particles(comm, generate(comm, scn))
     soil = x[phase != PHASE_WALL]
     # rows: y = 0 holds 0.2 0.4 0.6, y = 0.5 holds 0.6 everywhere (the file lists north first)
     assert len(soil) > 0
@@ -74,8 +66,8 @@ def test_ids_independent_of_rank_count(comm, tmp_path):
     path = comm.bcast(path)
     scn = load_scene(path)
     one = comm.Split(0 if comm.rank == 0 else MPI.UNDEFINED, comm.rank)
-    serial = _gather(one, generate(one, scn)) if comm.rank == 0 else None
-    parallel = _gather(comm, generate(comm, scn))
+    serial = gather_particles(one, generate(one, scn)) if comm.rank == 0 else None
+    parallel = gather_particles(comm, generate(comm, scn))
     assert global_sum(comm, 1) == comm.size
     if comm.rank == 0:
         assert np.array_equal(serial[0], parallel[0])

@@ -11,7 +11,7 @@ from parsph.geometry import generate
 from parsph.heightmap import read_grid
 from parsph.materials import PHASE_WALL
 from parsph.scene import load_scene
-from tests.scenes import MOVING_3D, write
+from tests.scenes import MOVING_3D, gather_particles, write
 
 #: GeoKeyDirectory entries (key, location 0, count 1, value) of GeoTIFF 1.1.
 MODEL, RASTER, GEOGRAPHIC, PROJECTED, LINEAR = 1024, 1025, 2048, 3072, 3076
@@ -55,14 +55,6 @@ def _scene_text(top):
                              f'shape = "heightmap"\ntop = "{top}"\nbottom = 0.0')
 
 
-def _gather(comm, fields):
-    allf = comm.allgather({k: fields[k] for k in ("id", "x", "phase")})
-    ids = np.concatenate([f["id"] for f in allf])
-    order = np.argsort(ids)
-    return ids[order], np.concatenate([f["x"] for f in allf])[order], \
-        np.concatenate([f["phase"] for f in allf])[order]
-
-
 def test_geotiff_gives_the_particles_of_the_ascii_grid(comm, mpi_tmp_path):
     """The same DEM as an ESRI ASCII grid and as GeoTIFFs (pixel-is-area, pixel-is-point,
     LZW-compressed): identical particles."""
@@ -78,7 +70,7 @@ def test_geotiff_gives_the_particles_of_the_ascii_grid(comm, mpi_tmp_path):
     runs = {}
     for top in ("z.asc", "area.tif", "point.tif", "lzw.tif"):
         scn = load_scene(str(tmp / f"{top}.toml"))
-        ids, x, phase = _gather(comm, generate(comm, scn))
+        ids, x, phase = gather_particles(comm, generate(comm, scn))
         runs[top] = x[phase != PHASE_WALL]
     assert len(runs["z.asc"]) > 20
     for top in ("area.tif", "point.tif", "lzw.tif"):
@@ -97,8 +89,8 @@ def test_geotiff_particles_independent_of_rank_count(comm, mpi_tmp_path):
     scn = load_scene(write(tmp, _scene_text("dem.tif"))) if comm.rank == 0 else None
     scn = comm.bcast(scn)
     one = comm.Split(0 if comm.rank == 0 else MPI.UNDEFINED, comm.rank)
-    serial = _gather(one, generate(one, scn)) if comm.rank == 0 else None
-    parallel = _gather(comm, generate(comm, scn))
+    serial = gather_particles(one, generate(one, scn)) if comm.rank == 0 else None
+    parallel = gather_particles(comm, generate(comm, scn))
     if comm.rank == 0:
         assert np.array_equal(serial[0], parallel[0])
         assert np.array_equal(serial[1], parallel[1])
