@@ -365,12 +365,16 @@ def test_elastic_gate_against_the_experiment(comm, mpi_tmp_path):
 
     with open(os.path.join(out, "stats.csv")) as fh:
         rows = list(csv.DictReader(fh))
-    assert float(rows[-1]["time"]) == pytest.approx(0.4)
+    # the run stops at the first sync step at or after run.end_time
+    late = scene.fluid.preconditioner_reuse * max(float(r["dt"]) for r in rows) * (1 + 1e-9)
+    assert 0.4 <= float(rows[-1]["time"]) <= 0.4 + late
     assert float(rows[-1]["n_fluidised"]) == 0
     t, dx, dy = free_end(out)
-    assert t[-1] == pytest.approx(0.4)
+    assert 0.4 <= t[-1] <= 0.4 + late
     assert 0.03 < dx.max() < 0.06  # opened (the experiment: 46 mm at 0.16 s)
     ex, ey = gate_errors(out)
+    print(f"elastic_gate: mean |error| {ex * 1e3:.1f} mm (dx), {ey * 1e3:.1f} mm (dy), "
+          f"max dx {dx.max() * 1e3:.1f} mm")
     assert ex < GATE_TOLERANCE["x"], f"horizontal: mean error {ex * 1e3:.1f} mm"
     assert ey < GATE_TOLERANCE["y"], f"vertical: mean error {ey * 1e3:.1f} mm"
     ratio = np.array([float(r["energy_ratio"]) for r in rows])
