@@ -377,28 +377,27 @@ class ProbeOutput:
     run left in ``DIR``). Samples are taken at the first step at or after each multiple
     of a probe's ``every`` (the steps are never cut to meet them); after a restart the
     schedule goes on from the checkpoint's time and the file is continued without
-    duplicate rows (:class:`parsph.io.probes.ProbeWriter`).
+    duplicate rows (:class:`parsph.io.probes.ProbeWriter`) when ``continuing`` (a
+    restart in its own directory); a branch into another directory starts its own.
     """
 
-    def __init__(self, ctx, continuing=None):
+    def __init__(self, ctx, continuing):
         from decomposition import collective
         from parsph.io.probes import ProbeWriter, remove_stale
 
         scene, comm = ctx.scene, ctx.comm
-        # a restart in its own directory continues probes.csv; a branch starts its own
-        resumed = ctx.restarted if continuing is None else continuing
         self.sampler = Sampler(scene, ctx.box, ctx.h) if scene.probes else None
         self.writer = None
         with collective(comm):
             if self.sampler is None:
-                if comm.rank == 0 and not resumed:
+                if comm.rank == 0 and not continuing:
                     remove_stale(ctx.out)
                 return
             for it in self.sampler.items:
-                it.rewind(ctx.time, fresh=not resumed)
+                it.rewind(ctx.time, fresh=not continuing)
             if comm.rank == 0:
                 self.writer = ProbeWriter(ctx.out, self.sampler.items, ctx.dim,
-                                          resume_time=ctx.time if resumed else None)
+                                          resume_time=ctx.time if continuing else None)
 
     def sample_due(self, ctx) -> None:
         """Collective: sample the probes due at ``ctx.time`` (every rank calls this)."""
