@@ -75,7 +75,7 @@ def main():
             lo, hi = col(f"n_{phase}_rank_min")[k], col(f"n_{phase}_rank_max")[k]
             metrics[f"{phase}_per_rank_t{q}_min"] = int(lo)
             metrics[f"{phase}_per_rank_t{q}_max"] = int(hi)
-    record(args.csv, f"coupled_{args.scene}", "parsph", 2, n, comm.size, metrics)
+    record(args.csv, f"coupled_{args.scene}", "parsph", summary["dim"], n, comm.size, metrics)
 
 
 if __name__ == "__main__":

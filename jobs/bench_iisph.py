@@ -67,7 +67,7 @@ def main():
                    "s_per_step_infrastructure": float(np.mean(infra)),
                    "particle_steps_per_s_per_core": n / s_step / comm.size}
         name = "iisph_dam_break" + "".join(f"[{item}]" for item in args.set)
-        record(args.csv, name, "parsph", 2, n, comm.size, metrics)
+        record(args.csv, name, "parsph", summary["dim"], n, comm.size, metrics)
 
 
 if __name__ == "__main__":

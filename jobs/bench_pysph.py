@@ -43,7 +43,7 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from benchlib import record  # noqa: E402
+from benchlib import record, worker_line  # noqa: E402
 
 A, RHO, NU, G = 0.146, 1000.0, 1.0e-6, 9.81  # as parsph/scenes/dam_break.toml
 TANK_LENGTH, TANK_HEIGHT = 4.0 * A, 0.35
@@ -155,7 +155,7 @@ def run_pysph(py, work, tag, d, end, every):
     wall = time.perf_counter() - t0
     if proc.returncode:
         sys.exit(f"PySPH failed:\n{proc.stdout[-3000:]}\n{proc.stderr[-3000:]}")
-    res = json.loads(proc.stdout.split("PYSPH_RESULT ", 1)[1].splitlines()[0])
+    res = json.loads(worker_line(proc.stdout, "PYSPH_RESULT ", f"PySPH run ({path})"))
     T = np.array(res["time"]) * math.sqrt(2 * G / A)
     Z = (np.array(res["front_x"]) + 0.5 * d) / A
     return dict(particles=res["particles"], fluid=res["fluid"], steps=res["steps"],

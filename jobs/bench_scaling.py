@@ -38,7 +38,7 @@ import sys
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from benchlib import record, run_benchmark  # noqa: E402
+from benchlib import record, run_benchmark, worker_line  # noqa: E402
 
 #: A block filling a periodic box, Drucker-Prager soil drifting at 1 cm/s: every rank, even
 #: a single one, has halo rows (the periodic images), so the halo's fixed cost per step and
@@ -164,8 +164,7 @@ def run_worker(ranks, case, particle_size, steps):
     if out.returncode != 0:
         sys.stderr.write(out.stdout + out.stderr)
         raise SystemExit(f"benchmark run failed: {' '.join(cmd)}")
-    line = [x for x in out.stdout.splitlines() if x.startswith("SCALING ")][-1]
-    return json.loads(line.split(" ", 1)[1])
+    return json.loads(worker_line(out.stdout, "SCALING ", f"scaling worker ({' '.join(cmd)})"))
 
 
 def main():

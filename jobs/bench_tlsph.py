@@ -30,7 +30,7 @@ import tempfile
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from benchlib import record, run_benchmark  # noqa: E402
+from benchlib import record, run_benchmark, worker_line  # noqa: E402
 
 SCENE = """
 [scene]
@@ -176,9 +176,12 @@ def run_parsph(ranks, particles, steps):
     py = sys.executable
     cmd = ["mpirun", "-n", str(ranks), py, os.path.abspath(__file__), "--worker",
            "--particles", str(particles), "--steps", str(steps)]
-    out = subprocess.run(cmd, capture_output=True, text=True, check=True)
-    line = [x for x in out.stdout.splitlines() if x.startswith("PARSPH ")][-1].split()
-    return float(line[1]), int(line[2]), float(line[3]), float(line[4])
+    out = subprocess.run(cmd, capture_output=True, text=True)
+    if out.returncode != 0:
+        sys.stderr.write(out.stdout + out.stderr)
+        raise SystemExit(f"benchmark run failed: {' '.join(cmd)}")
+    line = worker_line(out.stdout, "PARSPH ", f"parsph worker ({' '.join(cmd)})").split()
+    return float(line[0]), int(line[1]), float(line[2]), float(line[3])
 
 
 def main():

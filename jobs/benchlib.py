@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 import os
+import re
 import sys
 
 COLUMNS = ["benchmark", "code", "dim", "particles", "ranks", "metric", "value"]
@@ -29,6 +30,22 @@ def record(path, benchmark: str, code: str, dim: int, particles: int, ranks: int
             if new:
                 w.writeheader()
             w.writerows(rows)
+
+
+#: terminal control sequences (CSI, OSC) and carriage returns: Open MPI gives ranks a
+#: pseudo-terminal, so a worker's line may read "\x1b[0mPARSPH ..." or end in "\r"
+_TERMINAL = re.compile(r"\x1b\[[0-?]*[ -/]*[@-~]|\x1b\][^\x07\x1b]*(?:\x07|\x1b\\)|\x1b[@-_]|\r")
+
+
+def worker_line(stdout: str, tag: str, what: str) -> str:
+    """The text after ``tag`` on the last line of a worker's ``stdout`` that carries it,
+    terminal codes removed; exits naming ``what`` and showing its output if none does."""
+    for line in reversed(_TERMINAL.sub("", stdout).splitlines()):
+        at = line.find(tag)
+        if at >= 0:
+            return line[at + len(tag):].strip()
+    tail = stdout[-2000:] if stdout else "(nothing)"
+    raise SystemExit(f"{what}: no line with {tag.strip()!r} in its output; it printed:\n{tail}")
 
 
 def run_benchmark(comm, scene, overrides=(), petsc_args=()):

@@ -19,7 +19,7 @@ __all__ = ["wall_contact"]
 
 
 @njit(cache=True)
-def wall_contact(x, v, rows, vrows, wall, vw, indptr, indices, h, d, dim, mu, push):
+def wall_contact(x, v, rows, vrows, wall, vw, indptr, indices, h, d, dim, mu, push, mu_w):
     r"""Non-penetration and Coulomb friction against boundary particles, in place on ``v``.
 
     For each ``k``, the particle at ``x[rows[k]]`` (velocity ``v[vrows[k]]``) against its
@@ -37,7 +37,10 @@ def wall_contact(x, v, rows, vrows, wall, vw, indptr, indices, h, d, dim, mu, pu
       :math:`\Delta v_n = -v_n`, and its tangential part is reduced by at most
       :math:`\mu_k (\Delta v_n + \max(\mathbf p_k\cdot\mathbf n, 0))` (Coulomb: the
       friction impulse is bounded by mu times the normal impulse; sticking when it would
-      reverse the slip). ``push[k]`` is a velocity change of this step by which the
+      reverse the slip); :math:`\mu_k` is the kernel-weighted mean of the partners'
+      ``mu_w[j]`` (each wall's own coefficient, ``walls.N.friction``: a rough floor
+      beside smooth side walls), or ``mu[k]`` where ``mu_w`` is negative (the caller
+      sets one or the other for all partners). ``push[k]`` is a velocity change of this step by which the
       boundary already holds the particle (the fluid's pressure impulse; zero for the
       solid).
 
@@ -53,6 +56,7 @@ def wall_contact(x, v, rows, vrows, wall, vw, indptr, indices, h, d, dim, mu, pu
         nv[:] = 0.0
         vb[:] = 0.0
         wsum = 0.0
+        musum = 0.0
         for q in range(indptr[r], indptr[r + 1]):
             j = indices[q]
             if not wall[j]:
@@ -64,6 +68,7 @@ def wall_contact(x, v, rows, vrows, wall, vw, indptr, indices, h, d, dim, mu, pu
             f = -fac_grad(dist, h, dim)
             wt = w(dist, h, dim)
             wsum += wt
+            musum += wt * mu_w[j]
             for a in range(dim):
                 nv[a] += f * (x[r, a] - x[j, a])
                 vb[a] += wt * vw[j, a]
@@ -109,8 +114,9 @@ def wall_contact(x, v, rows, vrows, wall, vw, indptr, indices, h, d, dim, mu, pu
         for a in range(dim):
             vt2 += (vr[a] - vn * nv[a]) ** 2
         vt = math.sqrt(vt2)
-        if vt > 0.0 and mu[k] > 0.0:
-            fac = max(0.0, 1.0 - mu[k] * dvn / vt)
+        muk = musum / wsum if musum >= 0.0 else mu[k]
+        if vt > 0.0 and muk > 0.0:
+            fac = max(0.0, 1.0 - muk * dvn / vt)
             for a in range(dim):  # the tangential part only
                 v[i, a] -= (1.0 - fac) * (vr[a] - vn * nv[a])
     return count

@@ -63,6 +63,8 @@ class Context:
     radius: float
     rcb: RCB = None
     rcb_ref: RCB = None
+    #: set when the solids' partition (by X) was rebuilt: their view must be rebuilt too
+    solids_moved: bool = False
     halo: Halo = None
     indptr: np.ndarray = None
     indices: np.ndarray = None
@@ -206,7 +208,9 @@ def _distribute(ctx, force: bool = False) -> None:
     The partition follows ``ctx.key``: current positions ``x`` (fluids: particles
     migrate as they move), or reference positions ``X`` (TLSPH solids: ownership, halo
     and neighbour lists are fixed for the whole run). It balances work, not particles:
-    walls weigh :data:`WALL_WORK`.
+    walls weigh :data:`WALL_WORK`. In the mixed layout (coupled scenes) the solids are
+    partitioned by ``X`` and the other rows by ``x``, each re-partitioned when its owned
+    counts (work) exceed ``run.rebalance_tolerance`` times the mean.
     """
     p, comm, key = ctx.particles, ctx.comm, ctx.key
     owned = p.owned_fields()
@@ -216,7 +220,10 @@ def _distribute(ctx, force: bool = False) -> None:
     work = _work(owned["phase"])
     if ctx.layout == "mixed":  # solids by X (fixed), the other rows by x
         solid = owned["phase"] == PHASE_SOLID
-        if force or ctx.rcb_ref is None:
+        # the solids' partition is fixed by X, but the phase change empties the ranks
+        # that hold the failing toe: rebuilt when their counts drift past the tolerance
+        if force or ctx.rcb_ref is None or imbalance(comm, float(solid.sum())) > tolerance:
+            ctx.solids_moved = ctx.rcb_ref is not None
             ctx.rcb_ref = RCB.build(comm, owned["X"][solid], ctx.box)
         if force or ctx.rcb is None or imbalance(comm, float(work[~solid].sum())) > tolerance:
             ctx.rcb = RCB.build(comm, owned["x"][~solid], ctx.box, weights=work[~solid])
@@ -492,7 +499,7 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
     to the checkpoint's step); in another ``out`` it is a branch, a new run directory
     whose first frame is the checkpoint's state, the checkpoint's directory untouched.
     Either way the steps are those of the uninterrupted run (bit for bit at the same rank
-    count). Returns a summary (steps, time, wall seconds, particle count).
+    count). Returns a summary (steps, time, wall seconds, particle count, dimension and more).
 
     Raises
     ------
@@ -639,7 +646,8 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
     wall = time.perf_counter() - wall0
     log.info("done: %d steps to t = %.6g s in %.2f s wall; output in %s", ctx.step, ctx.time,
              wall, out)
-    return {"steps": ctx.step, "time": ctx.time, "wall_s": wall, "particles": n_total, "out": out,
+    return {"steps": ctx.step, "time": ctx.time, "wall_s": wall, "particles": n_total,
+            "dim": ctx.dim, "out": out,
             "bytes_per_particle": memory / max(n_total, 1),
             "neighbours_per_particle": pairs / max(n_total, 1)}
 

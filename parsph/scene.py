@@ -11,6 +11,7 @@ import math
 import os
 import tomllib
 from dataclasses import dataclass, field, replace
+from typing import Optional
 from importlib import resources
 
 import numpy as np
@@ -158,6 +159,9 @@ class Wall:
     layers: int = spec(0, doc="layers of wall particles (0 = enough for the kernel support)",
                        ge=0)
     slip: str = spec("no_slip", doc="no_slip | free_slip", choices=("no_slip", "free_slip"))
+    friction: Optional[float] = spec(None, doc="Coulomb friction coefficient of a TLSPH "
+                                     "solid on this wall (-); default solid.wall_friction",
+                                     ge=0.0)
 
 
 @dataclass(frozen=True)

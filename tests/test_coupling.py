@@ -522,9 +522,45 @@ def test_slope_failure_fluidises_and_runs_out_further(comm, mpi_tmp_path):
     rows = _slope(comm, mpi_tmp_path, 0.05)
     if comm.rank == 0:
         _slope_checks(rows, 0.05)
+        # both phases stay balanced as the toe fluidises (the solids' partition by X is
+        # rebuilt when their counts drift: 250 against 441 per rank before)
+        tolerance = solid.run.rebalance_tolerance
+        for r in rows:
+            lo, hi = float(r["n_solid_rank_min"]), float(r["n_solid_rank_max"])
+            mean = float(r["n_solid"]) / comm.size
+            assert hi <= tolerance * mean + 1, (r["time"], lo, hi)
         at = [r for r in rows if float(r["time"]) <= 0.7 + 1e-9][-1]
         assert float(_stats(out)[-1]["front"]) < 0.2
         assert float(at["front"]) > float(_stats(out)[-1]["front"]) + 0.2
+
+
+@pytest.mark.mpi(min_size=2)
+def test_solid_partition_follows_the_failing_toe(comm, mpi_tmp_path):
+    """The solids are owned by their reference position; as the toe fluidises the rank
+    holding it loses solids. With run.rebalance_tolerance = 1.05 their partition is
+    rebuilt whenever the largest owned count passes 1.05 x the mean: every stats row
+    stays within it, the run keeps the energy bound, and a restart after such rebuilds
+    is still bit for bit."""
+    sets = ["run.rebalance_tolerance=1.05", "output.every=0.4", "output.progress=false"]
+    whole, first = (os.path.join(mpi_tmp_path, k) for k in ("whole", "first"))
+    run(load_scene("slope_failure", sets + ["run.end_time=1.2"]), whole, comm=comm,
+        progress=False)
+    run(load_scene("slope_failure", sets + ["run.end_time=0.8"]), first, comm=comm,
+        progress=False)
+    run(load_scene("slope_failure", sets + ["run.end_time=1.2"]), first, comm=comm,
+        progress=False, restart=os.path.join(first, "checkpoint.h5"))
+    if comm.rank == 0:
+        rows = _stats(whole)
+        highs = []
+        for r in rows:
+            mean = float(r["n_solid"]) / comm.size
+            highs.append(float(r["n_solid_rank_max"]))
+            assert float(r["n_solid_rank_max"]) <= 1.05 * mean + 1, r["time"]
+        assert max(highs) > min(highs)  # the partition moved with the fluidising toe
+        assert max(float(r["energy_ratio"]) for r in rows) <= 1.0
+        a, b = last_frame(first), last_frame(whole)
+        for key in ("id", "x", "v", "p", "eps_p", "phase"):
+            assert np.array_equal(a[key], b[key]), key
 
 
 @pytest.mark.mpi(min_size=2)

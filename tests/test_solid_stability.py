@@ -234,3 +234,88 @@ velocity = [{v0}, 0.0]
         assert moved == pytest.approx(v0 * t - 0.5 * mu * 9.81 * t * t, rel=0.15)
         assert (last["x"][:, 1] > 0.0).all()
         assert np.abs(last["v"][:, 1]).max() < 0.5 * v0  # elastic rocking only
+
+
+SLIDE_3D = """
+[scene]
+name = "slide3d"
+[domain]
+dim = 3
+particle_size = 0.02
+lo = [-0.2, -0.2, -0.2]
+hi = [0.8, 0.3, 0.4]
+[run]
+end_time = {end}
+[output]
+every = {end}
+progress = false
+[gravity]
+g = {g}
+[solid]
+wall_friction = {mu}
+[materials.m]
+model = "hencky"
+density = 1000.0
+poisson_ratio = 0.3
+young_modulus = 1.0e6
+[[bodies]]
+name = "block"
+material = "m"
+shape = "box"
+lo = [0.0, 0.0, 0.0]
+hi = [0.1, 0.1, 0.1]
+[[walls]]
+name = "floor"
+shape = "box"
+lo = [-0.1, -0.06, -0.06]
+hi = [0.7, 0.16, 0.0]
+[[walls]]
+name = "front"
+shape = "box"
+lo = [-0.1, -0.06, 0.0]
+hi = [0.7, 0.0, 0.2]
+{side}
+[[walls]]
+name = "back"
+shape = "box"
+lo = [-0.1, 0.1, 0.0]
+hi = [0.7, 0.16, 0.2]
+{side}
+"""
+
+
+def test_per_wall_friction_block_on_rough_floor_between_smooth_walls(comm, mpi_tmp_path):
+    """walls.N.friction: a 3D block slides down a rough floor (mu = 0.3, the scene's
+    solid.wall_friction) while gravity presses it against a smooth side wall
+    (friction = 0): it moves as g_x - mu |g_z|, the floor's Coulomb law alone, says
+    (measured: 0.0566 m against 0.0505 m in 0.2 s). Its twin with the side walls at the
+    scene's coefficient is slowed by at least mu |g_y| more (measured 0.0205 m)."""
+    mu, end = 0.3, 0.2
+    g = np.array([4.905, -2.943, -7.95])  # along the slide, into the side, into the floor
+    moved = {}
+    for case, side in (("smooth", "friction = 0.0"), ("rough", "")):
+        text = SLIDE_3D.format(end=end, g=list(g), mu=mu, side=side)
+        sub = os.path.join(mpi_tmp_path, case)
+        if comm.rank == 0:
+            os.makedirs(sub, exist_ok=True)
+        comm.barrier()
+        path = write(sub, text) if comm.rank == 0 else None
+        scene = load_scene(comm.bcast(path))
+        run(scene, os.path.join(sub, "out"), comm=comm, progress=False)
+        if comm.rank == 0:
+            h5 = os.path.join(sub, "out", "particles.h5")
+            first, last = read_frame(h5, 0), read_frame(h5, "last")
+            a, b = (np.argsort(f["id"]) for f in (first, last))
+            solid = first["phase"][a] == 0
+            dx = last["x"][b][solid] - first["x"][a][solid]
+            moved[case] = (float(dx[:, 0].mean()), float(dx[:, 1].mean()),
+                           float(last["time"] if "time" in last else end))
+    if comm.rank == 0:
+        t = end
+        smooth = 0.5 * (g[0] - mu * abs(g[2])) * t * t  # 0.0505 m
+        rough = 0.5 * (g[0] - mu * (abs(g[2]) + abs(g[1]))) * t * t  # 0.0328 m
+        assert moved["smooth"][0] == pytest.approx(smooth, rel=0.15), moved
+        # with rough side walls it is slowed at least by the pressed wall's mu |g_y| (the
+        # other side wall, touched at a gap of d, adds what the elastic rocking presses)
+        assert moved["rough"][0] < 1.15 * rough, moved
+        assert abs(moved["smooth"][1]) < 0.005 and abs(moved["rough"][1]) < 0.005  # held

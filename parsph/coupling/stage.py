@@ -282,7 +282,11 @@ class Coupled:
         return {k: ctx_stats.get(k, 0.0) for k in self.stats_columns}
 
     def after_refresh(self, ctx) -> None:
-        """Per-rank counts and the fluidised volume, after the re-distribution."""
+        """Per-rank counts and the fluidised volume, after the re-distribution; the solid
+        view again if the solids were re-partitioned (their state is in the main set)."""
+        if ctx.solids_moved and self.view is not None:
+            self._build_view(ctx)
+        ctx.solids_moved = False
         p, n, comm = ctx.particles, ctx.n_owned, ctx.comm
         phase = p["phase"][:n]
         ns, nf = int((phase == PHASE_SOLID).sum()), int((phase == PHASE_FLUID).sum())

@@ -454,7 +454,8 @@ class IISPH:
                 # halo rows, whatever the partition
                 moving = np.where((solid > 0)[:, None], vs, 0.0)
                 contacts = wall_contact(x, vnew, surface, surface, 1 - fluid, moving, indptr,
-                                        indices, h, d, dim, mu, push)
+                                        indices, h, d, dim, mu, push,
+                                        np.full(len(fluid), -1.0))
         p["v"][:n][own_fluid] = vnew[own_fluid]
         p["x"][:n][own_fluid] += dt * vnew[own_fluid]
         div = assembly.divergence(x, p["v"], m, rho, fluid, indptr, indices, h, dim)

@@ -58,6 +58,10 @@ class TLSPH:
         self.rho0_of = np.ascontiguousarray(self.tab[:, C["rho0"]])
         self.has_cam_clay = bool(np.any(self.tab[:, C["model"]] == CAM_CLAY))
         self.has_walls = bool(ctx.scene.walls)
+        # each wall's Coulomb coefficient for the solid (walls.N.friction, else the scene's)
+        self.wall_friction = np.array(
+            [self.num.wall_friction if w.friction is None else w.friction
+             for w in ctx.scene.walls] + [self.num.wall_friction])
         self.failure_fluidises = False  # set by the coupled stage (phase change)
         self.failed = np.zeros(0, dtype=np.int64)  # rows that failed in the last step
         self.stats_columns = ("solid_plastic", "solid_contacts", "elastic_energy")
@@ -236,7 +240,7 @@ class TLSPH:
 
         p, n = ctx.particles, ctx.particles.n_owned
         solid = self.sel[:n]
-        near = ctx.nearby_walls(["x"], around=solid)
+        near = ctx.nearby_walls(["x", "body"], around=solid)
         xw = near["x"]
         count = 0
         rows = np.flatnonzero(solid).astype(np.int64)
@@ -246,10 +250,12 @@ class TLSPH:
             wall = np.zeros(len(xall), dtype=np.uint8)
             wall[len(rows):] = 1
             mu = np.full(len(rows), self.num.wall_friction)
+            mu_w = np.zeros(len(xall))
+            mu_w[len(rows):] = self.wall_friction[near["body"] - len(ctx.scene.bodies)]
             push = np.zeros((len(rows), ctx.dim))
             still = np.zeros_like(xall)  # fixed walls
             count = wall_contact(xall, p["v"], np.arange(len(rows)), rows, wall, still, indptr,
-                                 indices, ctx.h, ctx.d, ctx.dim, mu, push)
+                                 indices, ctx.h, ctx.d, ctx.dim, mu, push, mu_w)
         return global_sum(ctx.comm, count)
 
     def _elastic_energy(self, ctx) -> float:
