@@ -302,13 +302,14 @@ def test_block_in_water_at_any_density_ratio(comm, mpi_tmp_path, ratio):
     gravity, the block's released elastic energy and the PPE's density term can supply
     (stats.csv energy_bound); the light block floats at Archimedes' draft, half its
     height; the heavy ones sink. A partitioned coupling blew up when fluid and solid had
-    comparable mass (the gate of docs/coupling.md). The heaviest block is followed until
-    just before it reaches the floor: its impact through the last film of water is a hard
-    case of its own (docs/coupling.md)."""
+    comparable mass (the gate of docs/coupling.md). The heaviest block is followed through
+    its impact on the floor through the last film of water (at ~0.28 s, 2.3 m/s; it
+    raised the kinetic energy 3-5x the bound in an earlier session; measured now: 0.62 of
+    it on 1 rank, 0.74 on 2)."""
     from parsph.io import read_frame, read_frames
     from parsph.run import run
 
-    end = 0.25 if ratio > 5 else 1.5
+    end = 0.45 if ratio > 5 else 1.5  # the heaviest lands on the floor at ~0.28 s
     scene = _scene(mpi_tmp_path, BLOCK_IN_TANK, [f"materials.block.density={1000.0 * ratio}",
                                                   f"run.end_time={end}", "output.every=0.05"],
                    comm)
@@ -335,9 +336,11 @@ def test_block_in_water_at_any_density_ratio(comm, mpi_tmp_path, ratio):
     if ratio < 1.0:  # floats: the mean draft over the last second, within d/2 of rho_s/rho_f H
         drafts = [_draft(f, d) for t, f in frames if t >= 0.5]
         assert np.mean(drafts) == pytest.approx(ratio * 0.1, abs=0.5 * d)
-    else:  # sinks: below its start, faster the heavier
+    else:  # sinks: below its start, faster the heavier; the heaviest to the floor
         f = frames[-1][1]
         assert f["x"][f["phase"] == 0][:, 1].min() < 0.29 - (0.02 if ratio > 1.0 else 0.0)
+        if ratio > 5:
+            assert f["x"][f["phase"] == 0][:, 1].min() < 1.5 * d
 
 
 #: Tolerance of the gate's free-end displacement, mean |simulated - measured| over the
