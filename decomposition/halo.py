@@ -410,7 +410,40 @@ def _geometric_pattern(x, radius, my_lo, my_hi, lo_all, hi_all, glo, ghi, shifts
     return rows, dest, img
 
 
-def proximity_halo(comm, x_owned, select, radius: float, lo, hi) -> Halo:
+def _box_images(box, dim):
+    """Image offsets (m) of a point, zero shift first (``[0]`` without periodic axes)."""
+    if box is None or not box.any_periodic:
+        return np.zeros((1, dim))
+    return box.image_shifts()
+
+
+def _near_box(x, shift, lo, hi, radius):
+    """Rows whose image ``x + shift`` lies within ``radius`` of the box [lo, hi]."""
+    y = x + shift
+    return np.all((y >= lo - radius) & (y <= hi + radius), axis=1)
+
+
+def _image_send_lists(comm, x, boxes_of, radius, shifts, with_self_zero):
+    """Per destination: the rows (and their image offsets) near any of its boxes."""
+    send, send_shift = [], []
+    for q, boxes in enumerate(boxes_of):
+        rows, offs = [], []
+        for k, s in enumerate(shifts):
+            if k == 0 and q == comm.rank and not with_self_zero:
+                continue
+            near = np.zeros(len(x), dtype=bool)
+            for blo, bhi in boxes:
+                if len(x) and not np.any(blo > bhi):
+                    near |= _near_box(x, s, blo, bhi, radius)
+            idx = np.flatnonzero(near)
+            rows.append(idx)
+            offs.append(np.repeat(s[None, :], len(idx), axis=0))
+        send.append(np.concatenate(rows) if rows else np.zeros(0, dtype=np.int64))
+        send_shift.append(np.concatenate(offs) if offs else np.zeros((0, x.shape[1])))
+    return send, send_shift
+
+
+def proximity_halo(comm, x_owned, select, radius: float, lo, hi, box=None) -> Halo:
     """Collective: send the selected owned rows to every rank whose box is within reach.
 
     Parameters
@@ -432,11 +465,16 @@ def proximity_halo(comm, x_owned, select, radius: float, lo, hi) -> Halo:
     neighbourhoods in the current configuration when ownership follows another one
     (TLSPH particles are owned by their reference position). Rows are also sent to
     this rank itself when they lie near its box, so the result is the complete set of
-    selected rows near the box. No periodic images.
+    selected rows near the box. With a periodic ``box`` the periodic images of the rows
+    are sent too (their ``x`` shifted by the exchange).
     """
     boxes = comm.allgather((np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)))
     x = np.asarray(x_owned, dtype=float)
     rows = np.flatnonzero(np.asarray(select, dtype=bool))
+    if box is not None and box.any_periodic:
+        send, shift = _image_send_lists(comm, x[rows], [[b] for b in boxes], radius,
+                                        box.image_shifts(), True)
+        return Halo.from_send_lists(comm, [rows[i] for i in send], shift, n_owned=len(x))
     send = []
     for blo, bhi in boxes:
         if len(rows) == 0 or np.any(blo > bhi):
@@ -448,7 +486,7 @@ def proximity_halo(comm, x_owned, select, radius: float, lo, hi) -> Halo:
     return Halo.from_send_lists(comm, send, None, n_owned=len(x))
 
 
-def coupled_halo(comm, x_owned, solid, fluid, radius: float) -> Halo:
+def coupled_halo(comm, x_owned, solid, fluid, radius: float, box=None) -> Halo:
     """Collective: the current-configuration halo of a coupled scene (mixed layout).
 
     Solid rows are owned by their reference position, the others by their current
@@ -456,8 +494,10 @@ def coupled_halo(comm, x_owned, solid, fluid, radius: float) -> Halo:
     Rank ``q`` receives every row within ``radius`` of the bounding box of its non-solid
     rows (fluid and walls: their neighbours of any kind) and every *fluid* row within
     ``radius`` of the bounding box of its solid rows (the fluid neighbours that make
-    a solid row type II, paper Fig. 2). No copies to self, no periodic images. A
-    negative ``radius`` gives an empty pattern (no fluid anywhere).
+    a solid row type II, paper Fig. 2). No copies to self except periodic images: with a
+    periodic ``box`` every rank, itself included, also gets the images of the rows
+    within reach (the exchange shifts their ``x`` and ``X``). A negative ``radius``
+    gives an empty pattern (no fluid anywhere).
 
     Parameters
     ----------
@@ -480,6 +520,25 @@ def coupled_halo(comm, x_owned, solid, fluid, radius: float) -> Halo:
         return pts.min(axis=0), pts.max(axis=0)
 
     boxes = comm.allgather((bbox(~solid), bbox(solid)))
+    if box is not None and box.any_periodic and radius >= 0 and len(x):
+        # images: any row near the non-solid box, fluid rows near the solid box
+        allrows = np.arange(len(x))
+        send_a, shift_a = _image_send_lists(comm, x, [[b[0]] for b in boxes], radius,
+                                            box.image_shifts(), False)
+        fl = np.flatnonzero(fluid)
+        send_s, shift_s = _image_send_lists(comm, x[fl], [[b[1]] for b in boxes], radius,
+                                            box.image_shifts(), False)
+        send, shift = [], []
+        for q in range(comm.size):
+            # a row near both boxes of q (same image) goes once
+            rows = np.concatenate([allrows[send_a[q]], fl[send_s[q]]])
+            offs = np.concatenate([shift_a[q], shift_s[q]])
+            key = np.concatenate([rows[:, None].astype(float), offs], axis=1)
+            _, first = np.unique(key, axis=0, return_index=True)
+            first = np.sort(first)
+            send.append(rows[first])
+            shift.append(offs[first])
+        return Halo.from_send_lists(comm, send, shift, n_owned=len(x))
     send = []
     for q, ((alo, ahi), (slo, shi)) in enumerate(boxes):
         if q == comm.rank or len(x) == 0:

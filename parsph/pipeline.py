@@ -20,7 +20,6 @@ from __future__ import annotations
 import importlib
 from dataclasses import dataclass
 
-from parsph.errors import SceneError
 
 
 
@@ -63,11 +62,6 @@ def plan(scene) -> list[StageSpec]:
 
     A scene with both solid (TLSPH) and fluid (IISPH) materials gets the one
     ``coupled`` stage (section 5 and the phase change of section 3.3).
-
-    Raises
-    ------
-    SceneError
-        For a coupled scene with periodic axes (not supported).
     """
     mode = scene.run.mode
     if mode in ("geometry", "kinematic"):
@@ -79,10 +73,6 @@ def plan(scene) -> list[StageSpec]:
             if stage not in names:
                 names.append(stage)
     if {"tlsph", "iisph"} <= set(names):
-        if any(scene.domain.periodic):
-            raise SceneError(f"{scene.source}: key 'domain.periodic': periodic axes are not "
-                             f"supported with solid (TLSPH) and fluid (IISPH) materials in one "
-                             f"scene; close the domain with walls")
         return [STAGES["coupled"]]
     return [STAGES[n] for n in names]
 

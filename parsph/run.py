@@ -138,8 +138,8 @@ class Context:
             lo, hi = pts.min(axis=0), pts.max(axis=0)
         else:
             lo, hi = np.full(self.dim, np.inf), np.full(self.dim, -np.inf)
-        halo = proximity_halo(self.comm, x, select, radius or self.radius, lo, hi)
-        return halo.exchange(p.owned_fields(names), shift_fields=())
+        halo = proximity_halo(self.comm, x, select, radius or self.radius, lo, hi, self.box)
+        return halo.exchange(p.owned_fields(names), shift_fields=("x", "X"))
 
 
 def prepare_output(comm, out: str) -> None:
@@ -215,7 +215,11 @@ def _distribute(ctx, force: bool = False) -> None:
     p, comm, key = ctx.particles, ctx.comm, ctx.key
     owned = p.owned_fields()
     if ctx.box.periodic and any(ctx.box.periodic):
-        owned["x"] = ctx.box.wrap(owned["x"])
+        # a TLSPH solid keeps its unwrapped x, continuous with its reference X (its
+        # neighbours across the boundary are images, shifted in x and X alike)
+        keep = owned["phase"] == PHASE_SOLID if ctx.layout != "current" else None
+        wrapped = ctx.box.wrap(owned["x"])
+        owned["x"] = wrapped if keep is None else np.where(keep[:, None], owned["x"], wrapped)
     tolerance = ctx.scene.run.rebalance_tolerance
     work = _work(owned["phase"])
     if ctx.layout == "mixed":  # solids by X (fixed), the other rows by x
@@ -275,7 +279,8 @@ def refresh(ctx, force_partition: bool = False) -> None:
             n = p.n_owned
             phase = p["phase"][:n]
             ctx.halo = coupled_halo(ctx.comm, p["x"][:n], phase == PHASE_SOLID,
-                                    phase == PHASE_FLUID, ctx.radius if current else -1.0)
+                                    phase == PHASE_FLUID, ctx.radius if current else -1.0,
+                                    ctx.box)
         else:
             ctx.halo = Halo.build(ctx.comm, ctx.rcb, p[key][: p.n_owned], ctx.radius + ctx.skin,
                                   ctx.box)

@@ -426,9 +426,6 @@ def _check_phase_change(scn: Scene, source: str) -> None:
     if pc.eps_p_limit > 0.0 and not solids:
         _err(source, "phase_change.eps_p_limit", "the scene has no solid (TLSPH) material "
              "whose particles could change phase")
-    if any(scn.domain.periodic):
-        _err(source, "domain.periodic", "periodic axes are not supported with solid-fluid "
-             "coupling and phase change; close the domain with walls")
 
 
 def _check_shape(source, key, shape, item, dim, lo, hi):

@@ -46,8 +46,8 @@ class SolidContext(Context):
         else:
             lo, hi = np.full(self.dim, np.inf), np.full(self.dim, -np.inf)
         halo = proximity_halo(self.comm, m["x"][:n], m["phase"][:n] == PHASE_WALL,
-                              self.radius, lo, hi)
-        rows = halo.exchange(m.owned_fields(names), shift_fields=())
+                              self.radius, lo, hi, self.box)
+        rows = halo.exchange(m.owned_fields(names), shift_fields=("x", "X"))
         self._walls = (step, tuple(names), rows)
         return rows
 
