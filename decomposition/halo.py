@@ -492,9 +492,9 @@ def coupled_halo(comm, x_owned, solid, fluid, radius: float, box=None) -> Halo:
     Solid rows are owned by their reference position, the others by their current
     one (``docs/coupling.md``), so the owned rows of a rank are two compact groups.
     Rank ``q`` receives every row within ``radius`` of the bounding box of its non-solid
-    rows (fluid and walls: their neighbours of any kind) and every *fluid* row within
-    ``radius`` of the bounding box of its solid rows (the fluid neighbours that make
-    a solid row type II, paper Fig. 2). No copies to self except periodic images: with a
+    rows (fluid and walls: their neighbours of any kind) and every row within ``radius``
+    of the bounding box of its solid rows (the fluid neighbours that make a solid row
+    type II, paper Fig. 2, and the support density that decides its contact). No copies to self except periodic images: with a
     periodic ``box`` every rank, itself included, also gets the images of the rows
     within reach (the exchange shifts their ``x`` and ``X``). A negative ``radius``
     gives an empty pattern (no fluid anywhere).
@@ -521,23 +521,9 @@ def coupled_halo(comm, x_owned, solid, fluid, radius: float, box=None) -> Halo:
 
     boxes = comm.allgather((bbox(~solid), bbox(solid)))
     if box is not None and box.any_periodic and radius >= 0 and len(x):
-        # images: any row near the non-solid box, fluid rows near the solid box
-        allrows = np.arange(len(x))
-        send_a, shift_a = _image_send_lists(comm, x, [[b[0]] for b in boxes], radius,
-                                            box.image_shifts(), False)
-        fl = np.flatnonzero(fluid)
-        send_s, shift_s = _image_send_lists(comm, x[fl], [[b[1]] for b in boxes], radius,
-                                            box.image_shifts(), False)
-        send, shift = [], []
-        for q in range(comm.size):
-            # a row near both boxes of q (same image) goes once
-            rows = np.concatenate([allrows[send_a[q]], fl[send_s[q]]])
-            offs = np.concatenate([shift_a[q], shift_s[q]])
-            key = np.concatenate([rows[:, None].astype(float), offs], axis=1)
-            _, first = np.unique(key, axis=0, return_index=True)
-            first = np.sort(first)
-            send.append(rows[first])
-            shift.append(offs[first])
+        # the images of every row near either box of each rank (as without periodic axes)
+        send, shift = _image_send_lists(comm, x, [list(b) for b in boxes], radius,
+                                        box.image_shifts(), False)
         return Halo.from_send_lists(comm, send, shift, n_owned=len(x))
     send = []
     for q, ((alo, ahi), (slo, shi)) in enumerate(boxes):

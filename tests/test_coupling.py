@@ -463,6 +463,26 @@ def test_phase_change_at_a_rank_boundary(comm, mpi_tmp_path):
 
 
 @pytest.mark.mpi(min_size=2)
+def test_slope_failure_3d_at_a_small_size(comm, mpi_tmp_path):
+    """The built-in 3D slope (a slab periodic across the slope) at d = 0.0625 m to 0.6 s:
+    1 and 2 ranks agree by global id to the KSP tolerance, the toe fluidises, and no step
+    raises the kinetic energy by more than gravity and the elastic energy can supply."""
+    scene = load_scene("slope_failure_3d", ["domain.particle_size=0.0625", "run.end_time=0.6",
+                                            "output.every=0.3", "output.progress=false"])
+    one, two = run_on_one_and_two(comm, scene, mpi_tmp_path)
+    if comm.rank == 0:
+        a, b = last_frame(one), last_frame(two)
+        assert np.array_equal(a["id"], b["id"])
+        assert np.array_equal(a["phase"], b["phase"])
+        assert np.abs(a["x"] - b["x"]).max() < 1e-6
+        assert np.abs(a["v"] - b["v"]).max() < 1e-4
+        for out in (one, two):
+            rows = _stats(out)
+            assert float(rows[-1]["n_fluidised"]) > 0
+            assert max(float(r["energy_ratio"]) for r in rows) <= 1.0
+
+
+@pytest.mark.mpi(min_size=2)
 def test_phase_change_one_vs_two_ranks(comm, mpi_tmp_path):
     """Through phase changes (and fluid solves), 1 and 2 ranks agree by global id."""
     scene = _scene(mpi_tmp_path, QUICK_COLLAPSE)
