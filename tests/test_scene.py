@@ -127,8 +127,8 @@ def test_scene_key_reference_is_current():
 
 
 def test_scene_with_solid_and_fluid_is_coupled(tmp_path):
-    """Both phases in one scene: the coupled stage in the mixed layout; periodic axes
-    and a bad [phase_change] are refused with the key named."""
+    """Both phases in one scene: the coupled stage in the mixed layout, periodic axes
+    too; a bad [phase_change] is refused with the key named."""
     from parsph.pipeline import layout, plan
     from parsph.scene import builtin_path
 
@@ -149,9 +149,11 @@ hi = [0.6, 1.1]
     scene = load_scene(write(tmp_path, text))
     specs = plan(scene)
     assert [s.name for s in specs] == ["coupled"] and layout(specs) == "mixed"
-    with pytest.raises(SceneError, match="domain.periodic"):
-        load_scene(write(tmp_path, text + '\n[phase_change]\neps_p_limit = 0.5\nfluid = "water"\n'),
-                   ["domain.periodic=[true, false]"])
+    # periodic axes are allowed in coupled scenes (test_coupling.py: the periodic twin)
+    periodic = load_scene(write(tmp_path, text + '\n[phase_change]\neps_p_limit = 0.5\n'
+                                'fluid = "water"\n'), ["domain.periodic=[true, false]"])
+    assert periodic.domain.periodic == (True, False)
+    assert [s.name for s in plan(periodic)] == ["coupled"]
     with pytest.raises(SceneError, match="phase_change.fluid.*no material"):
         load_scene(write(tmp_path, text + '\n[phase_change]\neps_p_limit = 0.5\nfluid = "mud"\n'))
     with pytest.raises(SceneError, match="phase_change.fluid.*not a fluid"):
