@@ -439,7 +439,7 @@ def _image_send_lists(comm, x, boxes_of, radius, shifts, with_self_zero):
             rows.append(idx)
             offs.append(np.repeat(s[None, :], len(idx), axis=0))
         send.append(np.concatenate(rows) if rows else np.zeros(0, dtype=np.int64))
-        send_shift.append(np.concatenate(offs) if offs else np.zeros((0, x.shape[1])))
+        send_shift.append(np.concatenate(offs) if offs else np.zeros((0, x.shape[-1])))
     return send, send_shift
 
 
@@ -471,19 +471,11 @@ def proximity_halo(comm, x_owned, select, radius: float, lo, hi, box=None) -> Ha
     boxes = comm.allgather((np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)))
     x = np.asarray(x_owned, dtype=float)
     rows = np.flatnonzero(np.asarray(select, dtype=bool))
-    if box is not None and box.any_periodic:
-        send, shift = _image_send_lists(comm, x[rows], [[b] for b in boxes], radius,
-                                        box.image_shifts(), True)
-        return Halo.from_send_lists(comm, [rows[i] for i in send], shift, n_owned=len(x))
-    send = []
-    for blo, bhi in boxes:
-        if len(rows) == 0 or np.any(blo > bhi):
-            send.append(np.zeros(0, dtype=np.int64))
-            continue
-        xs = x[rows]
-        near = np.all((xs >= blo - radius) & (xs <= bhi + radius), axis=1)
-        send.append(rows[near])
-    return Halo.from_send_lists(comm, send, None, n_owned=len(x))
+    periodic = box is not None and box.any_periodic
+    send, shift = _image_send_lists(comm, x[rows], [[b] for b in boxes], radius,
+                                    _box_images(box, x.shape[-1]), True)
+    return Halo.from_send_lists(comm, [rows[i] for i in send], shift if periodic else None,
+                                n_owned=len(x))
 
 
 def coupled_halo(comm, x_owned, solid, fluid, radius: float, box=None) -> Halo:
@@ -494,10 +486,10 @@ def coupled_halo(comm, x_owned, solid, fluid, radius: float, box=None) -> Halo:
     Rank ``q`` receives every row within ``radius`` of the bounding box of its non-solid
     rows (fluid and walls: their neighbours of any kind) and every row within ``radius``
     of the bounding box of its solid rows (the fluid neighbours that make a solid row
-    type II, paper Fig. 2, and the support density that decides its contact). No copies to self except periodic images: with a
-    periodic ``box`` every rank, itself included, also gets the images of the rows
-    within reach (the exchange shifts their ``x`` and ``X``). A negative ``radius``
-    gives an empty pattern (no fluid anywhere).
+    type II, paper Fig. 2, and the support density that decides its contact). No copies
+    to self except periodic images: with a periodic ``box`` every rank, itself included,
+    also gets the images of the rows within reach (the exchange shifts their ``x`` and
+    ``X``). A negative ``radius`` gives an empty pattern (no fluid anywhere).
 
     Parameters
     ----------
@@ -520,17 +512,8 @@ def coupled_halo(comm, x_owned, solid, fluid, radius: float, box=None) -> Halo:
         return pts.min(axis=0), pts.max(axis=0)
 
     boxes = comm.allgather((bbox(~solid), bbox(solid)))
-    if box is not None and box.any_periodic and radius >= 0 and len(x):
-        # the images of every row near either box of each rank (as without periodic axes)
-        send, shift = _image_send_lists(comm, x, [list(b) for b in boxes], radius,
-                                        box.image_shifts(), False)
-        return Halo.from_send_lists(comm, send, shift, n_owned=len(x))
-    send = []
-    for q, ((alo, ahi), (slo, shi)) in enumerate(boxes):
-        if q == comm.rank or len(x) == 0:
-            send.append(np.zeros(0, dtype=np.int64))
-            continue
-        near = np.all((x >= alo - radius) & (x <= ahi + radius), axis=1)
-        near |= np.all((x >= slo - radius) & (x <= shi + radius), axis=1)
-        send.append(np.flatnonzero(near))
-    return Halo.from_send_lists(comm, send, None, n_owned=len(x))
+    # every row near either box of each rank; to itself only the periodic images
+    periodic = box is not None and box.any_periodic
+    send, shift = _image_send_lists(comm, x, [list(b) for b in boxes], radius,
+                                    _box_images(box, x.shape[-1]), False)
+    return Halo.from_send_lists(comm, send, shift if periodic else None, n_owned=len(x))

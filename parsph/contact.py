@@ -40,9 +40,9 @@ def wall_contact(x, v, rows, vrows, wall, vw, indptr, indices, h, d, dim, mu, pu
       reverse the slip); :math:`\mu_k` is the kernel-weighted mean of the partners'
       ``mu_w[j]`` (each wall's own coefficient, ``walls.N.friction``: a rough floor
       beside smooth side walls), or ``mu[k]`` where ``mu_w`` is negative (the caller
-      sets one or the other for all partners). ``push[k]`` is a velocity change of this step by which the
-      boundary already holds the particle (the fluid's pressure impulse; zero for the
-      solid).
+      sets one or the other for all partners). ``push[k]`` is a velocity change of this
+      step by which the boundary already holds the particle (the fluid's pressure
+      impulse; zero for the solid).
 
     Returns the number of particles in contact.
     """

@@ -21,8 +21,6 @@ import importlib
 from dataclasses import dataclass
 
 
-
-
 @dataclass(frozen=True)
 class StageSpec:
     name: str
