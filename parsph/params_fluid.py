@@ -71,6 +71,12 @@ class FluidNumerics:
                                "nu dt / h^2 of the fluid is below explicit_viscous_number, else "
                                "implicit; coupled steps are always implicit; docs/iisph.md)",
                                choices=("auto", "implicit", "explicit"))
+    splitting: str = spec("projection_first", doc="order of an implicit step's two solves: "
+                          "projection_first (the PPE on v + dt g, then the viscous solve on "
+                          "the projected velocity with the new pressure in the yield stress "
+                          "(40); a highly viscous fluid's weight goes to the pressure) | paper "
+                          "(the viscous predictor (30) first, eqs. (30)-(31); a Bingham deposit "
+                          "creeps, docs/coupling.md)", choices=("projection_first", "paper"))
     explicit_viscous_number: float = spec(0.01, doc="auto: largest nu dt / h^2 solved "
                                           "explicitly (water at the CFL step: ~1e-3; a Bingham "
                                           "fluid: 1e2 and more; forward Euler is stable below "

@@ -526,7 +526,7 @@ def _slope_checks(rows, d):
 def test_slope_failure_fluidises_and_runs_out_further(comm, mpi_tmp_path):
     """Section 6.2 at d = 0.05 m (Table 2): with phase change the slope's toe fluidises
     and the slide runs out on it, far beyond the TLSPH-only slope (which stops within
-    ~0.1 m at 0.7 s), and comes to rest; no step makes energy. The partitioned coupling
+    ~0.1 m by 0.7 s), and comes to rest; no step makes energy. The partitioned coupling
     let thin fluidised bands in the soil grow their pressure 1.3x per step and raise the
     kinetic energy by up to 6 times what gravity can supply (docs/coupling.md)."""
     solid = load_scene("slope_failure_solid", ["run.end_time=0.7", "output.progress=false"])
@@ -542,9 +542,12 @@ def test_slope_failure_fluidises_and_runs_out_further(comm, mpi_tmp_path):
             lo, hi = float(r["n_solid_rank_min"]), float(r["n_solid_rank_max"])
             mean = float(r["n_solid"]) / comm.size
             assert hi <= tolerance * mean + 1, (r["time"], lo, hi)
-        at = [r for r in rows if float(r["time"]) <= 0.7 + 1e-9][-1]
+        # the TLSPH-only slope has stopped by 0.7 s; the fluidised slide runs out on the
+        # floor (1.23 m at 3 s, the slide under way by 0.7 s at 0.29 m)
         assert float(_stats(out)[-1]["front"]) < 0.2
-        assert float(at["front"]) > float(_stats(out)[-1]["front"]) + 0.2
+        assert float(rows[-1]["front"]) > float(_stats(out)[-1]["front"]) + 0.5
+        at = [r for r in rows if float(r["time"]) <= 0.7 + 1e-9][-1]
+        assert float(at["front"]) > float(_stats(out)[-1]["front"]) + 0.1
 
 
 

@@ -40,14 +40,14 @@ def _inside_tank(f, lo, hi, tol):
 
 
 def test_bingham_slump_comes_to_rest_at_the_cfl_step(comm, mpi_tmp_path):
-    """nu_fMAX = 1e4 m^2/s: an explicit scheme would need dt ~ d^2 / nu = 6e-8 s."""
+    """nu_fMAX = 1e4 m^2/s: an explicit scheme would need dt ~ d^2 / nu = 6e-8 s. With the
+    projection first (fluid.splitting, docs/coupling.md) the PPE carries the deposit's
+    weight and its yield stress (40) holds it: every fluid particle below 1 cm/s at 2 s
+    (the viscous predictor first left it creeping at 1.8 cm/s median, 3-4 cm/s max)."""
     scene, out = _run(comm, mpi_tmp_path, "bingham_slump", ["run.end_time=2.0"])
     vmax = _slump_checks(scene, out) if comm.rank == 0 else None
     vmax = comm.bcast(vmax, root=0)  # every rank reports the same outcome
-    if vmax >= 0.2:
-        # open (docs/coupling.md, limits): with the no-penetration wall rows a free front
-        # particle may still slide at up to 0.4 m/s at 2 s, depending on round-off
-        pytest.xfail(f"a fluid particle at {vmax:.2f} m/s at 2 s")
+    assert vmax < 0.01, f"a fluid particle at {vmax:.4f} m/s at 2 s"
 
 
 def _slump_checks(scene, out):
@@ -63,7 +63,7 @@ def _slump_checks(scene, out):
     assert ke[-1] < 0.01 * ke.max()  # slumped and (nearly) stopped
     f = read_frame(os.path.join(out, "particles.h5"), "last")
     assert _inside_tank(f, (0.0, 0.0), (3.0, 0.6), 0.5 * d)
-    return float(np.abs(f["v"][f["phase"] == 1]).max())
+    return float(np.sqrt((f["v"][f["phase"] == 1] ** 2).sum(axis=1)).max())
 
 
 def test_long_hydrostatic_run_stays_at_rest(comm, mpi_tmp_path):

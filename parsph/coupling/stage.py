@@ -227,8 +227,8 @@ class Coupled:
             ctx.update_halo(["v"])
             self.fluid.step(ctx, dt, self._coupling(ctx, inv))
             # the fluid's force on each solid particle (eq. (45)) before constraints: the
-            # pressure's and the viscous exchange of the predictor (47)
-            viscous = sp["m"][:ns, None] * (p["v_star"][view.rows] - sp["v"][:ns]) / dt
+            # pressure's and the viscous exchange of the viscous solve (47)
+            viscous = sp["m"][:ns, None] * self.fluid.solid_viscous_dv[view.rows] / dt
             fsi = self.fluid.solid_force[view.rows] + viscous
             p["fsi_force"][view.rows] = fsi
             sp["v"][:ns] = p["v"][view.rows]

@@ -5,16 +5,23 @@ neighbour lists within 2h of the current positions, owned rows first, halo after
 
 1. global PETSc point of every owned row (``offset + local``), sent to the halo rows;
 2. summation density (33) and free-surface flag (:math:`\rho_i < \beta \rho_0`);
-3. strain rate (39), Bingham viscosity (40) (+ eddy viscosity (41) if asked);
-4. implicit viscous predictor (30)/(34) for :math:`\mathbf{v}^*` (``visc_`` system,
-   block size ``dim``, GMRES + BoomerAMG), wall ghost velocities as extra unknowns; or,
-   with ``fluid.viscous_solver = "auto"`` and a viscous number below
-   ``fluid.explicit_viscous_number``, the same operator applied to the present velocity;
-5. stabilised PPE (32)/(35)/(36) (``ppe_`` system, GMRES + BoomerAMG), free surface
-   :math:`p = 0`, wall pressure extrapolated from the fluid (Adami et al. 2012) as
-   extra unknowns;
-6. corrector (31) with the gradient (37); positions :math:`\mathbf{x} \mathrel{+}= \Delta t
-   \mathbf{v}^{\beta+1}` (symplectic Euler).
+3. strain rate (39), Bingham viscosity (40) (+ eddy viscosity (41) if asked), from the
+   velocity and pressure of the last step;
+4. an implicit step (``fluid.splitting = "projection_first"``, the default): the
+   stabilised PPE (32)/(35)/(36) (``ppe_`` system, GMRES + BoomerAMG; free surface
+   :math:`p = 0`, wall pressure extrapolated from the fluid, Adami et al. 2012) on
+   :math:`\mathbf{v}^\beta + \Delta t\,\mathbf{g}`, the corrector (31) with the
+   gradient (37), then the viscosity (40) again with the new pressure and the implicit
+   viscous solve (30)/(34) (``visc_`` system, block size ``dim``) on the projected
+   velocity; wall ghost velocities as extra unknowns. With ``splitting = "paper"`` the
+   viscous predictor (30) comes first, as in the paper: with
+   :math:`\nu \Delta t / h^2 \gg 1` it carries part of a deposit's weight to a no-slip
+   floor and the deposit creeps (docs/coupling.md);
+5. an explicit step (``fluid.viscous_solver = "auto"`` and a viscous number below
+   ``fluid.explicit_viscous_number``): the same operator applied to the present velocity,
+   then the PPE and the corrector;
+6. positions :math:`\mathbf{x} \mathrel{+}= \Delta t \mathbf{v}^{\beta+1}`
+   (symplectic Euler).
 
 The time step is eq. (49) with :math:`C^f_{CFL}` = ``fluid.cfl`` and no viscous limit.
 """
@@ -258,6 +265,35 @@ class IISPH:
         ctx.update_halo(names)
         self._t_halo += time.perf_counter() - t0
 
+    def _viscosity(self, ctx, gamma, fluid) -> None:
+        """``nu`` of the owned rows from the strain rate and the present ``p`` (eqs. 40-41)."""
+        p, n, h = ctx.particles, ctx.n_owned, ctx.h
+        p["nu"][:n] = rheology.viscosity(gamma, p["p"][:n], fluid, p["material"][:n],
+                                         self.table, self.les)
+        if self.num.numerical_viscosity > 0:  # kappa h sqrt(|g| h), vanishes as h^1.5
+            gnorm = float(np.linalg.norm(ctx.body_acceleration(ctx.time)))
+            p["nu"][:n][fluid == 1] += self.num.numerical_viscosity * h * math.sqrt(gnorm * h)
+
+    def _viscous_solve(self, ctx, visc, order, dt, g, morris, row, indptr, indices, fluid,
+                       solid):
+        """The implicit viscous system (30)/(34) on the present ``v`` plus ``dt g``.
+
+        Returns the solution per owned row (fluid and type-II rows: their new velocity;
+        wall rows: their no-slip ghost velocity), the solve's info and the assembly time.
+        """
+        p, n, dim, h = ctx.particles, ctx.n_owned, ctx.dim, ctx.h
+        t0 = time.perf_counter()
+        ptr, cols, vals = self._csr_buffers(visc, dim * dim * (indptr[n] + n))
+        nnz, rhs = assembly.viscous_csr(
+            p["x"], p["v"], self._mass, p["rho"], p["nu"], fluid, solid, p["wall_slip"], row,
+            indptr, indices, h, dim, dt, g, morris, visc.offset // dim, ptr, cols, vals)
+        visc.assemble_csr(ptr, cols[:nnz], vals[:nnz])
+        t_asm = time.perf_counter() - t0
+        vstar, info = visc.solve(rhs[order], x0=p["v"][:n][order])
+        full = np.zeros((n, dim))
+        full[order] = vstar
+        return full, info, t_asm
+
     def step(self, ctx, dt, coupling=None) -> None:
         r"""Advance the owned fluid particles from t to t + dt (eqs. (30)-(37)).
 
@@ -312,16 +348,11 @@ class IISPH:
         # viscous solve (Adami et al. 2012), fluid and solid rows with their velocity
         vel = np.where(((fluid == 1) | (solid > 0))[:, None], p["v"], p["v_ghost"])
         gamma = rheology.strain_rate(x, vel, m, rho, fluid, slip, indptr, indices, h, dim)
-        p["nu"][:n] = rheology.viscosity(gamma, p["p"][:n], fluid[:n], p["material"][:n],
-                                         self.table, self.les)
-        if self.num.numerical_viscosity > 0:  # kappa h sqrt(|g| h), vanishes as h^1.5
-            gnorm = float(np.linalg.norm(ctx.body_acceleration(ctx.time)))
-            p["nu"][:n][fluid[:n] == 1] += self.num.numerical_viscosity * h * math.sqrt(gnorm * h)
+        self._viscosity(ctx, gamma, fluid[:n])
         if coupled:  # the solids' acceleration per unit of their own pressure
             p["a_self"][:n] = pressure.self_response(x, m, rho, rho0, fluid, solid,
                                                      p["inv_mass"], indptr, indices, h, dim)
         t_asm += time.perf_counter() - t0
-        self._halo(ctx, ["nu", "a_self"] if coupled else ["nu"])
 
         g = np.asarray(ctx.body_acceleration(ctx.time), dtype=np.float64)
         own_fluid = fluid[:n] == 1
@@ -332,9 +363,19 @@ class IISPH:
         mode = self.num.viscous_solver
         explicit = not coupled and (mode == "explicit" or (
             mode == "auto" and zeta < self.num.explicit_viscous_number))
+        # an implicit step projects first unless the paper's order is asked for: with
+        # nu dt / h^2 >> 1 the viscous predictor would carry part of the weight to a
+        # no-slip wall through a non-solenoidal v* (docs/coupling.md)
+        first = not explicit and self.num.splitting == "projection_first"
         vs = p["v_star"]
-        vs[:n] = p["v"][:n]  # walls: their velocity (the fluid rows get theirs below)
-        if explicit:  # zeta << 1: forward Euler on the operator of eq. (34), no matrix
+        vs[:n] = p["v"][:n]  # walls and solids: their velocity (the fluid rows: below)
+        self._mass = m
+        info_v = dict(iterations=0, residual_norm=0.0, time_s=0.0)
+        if first:  # the PPE's predictor: the body force alone
+            vs[:n][own_fluid] += dt * g
+            self._halo(ctx, ["v_star", "a_self"] if coupled else ["v_star"])
+        elif explicit:  # zeta << 1: forward Euler on the operator of eq. (34), no matrix
+            self._halo(ctx, ["nu"])
             t0 = time.perf_counter()
             assembly.ghost_velocity(x, p["v"], fluid, slip, indptr, indices, h, dim,
                                     p["v_ghost"])
@@ -345,22 +386,18 @@ class IISPH:
                                              slip, indptr, indices, h, dim, dt, g, morris)
             vs[:n][own_fluid] = vexp[own_fluid]
             t_asm += time.perf_counter() - t0
-            info_v = dict(iterations=0, residual_norm=0.0, time_s=0.0)
-        else:
-            t0 = time.perf_counter()
-            ptr, cols, vals = self._csr_buffers(visc, dim * dim * (indptr[n] + n))
-            nnz, rhs = assembly.viscous_csr(
-                x, p["v"], m, rho, p["nu"], fluid, solid, slip, row, indptr, indices, h, dim, dt,
-                g, morris, visc.offset // dim, ptr, cols, vals)
-            visc.assemble_csr(ptr, cols[:nnz], vals[:nnz])
-            t_asm += time.perf_counter() - t0
-            vstar, info_v = visc.solve(rhs[order], x0=p["v"][:n][order])
-            vs[:n][solid[:n] > 0] = p["v"][:n][solid[:n] > 0]  # solids: their predictor (7)
-            full = np.zeros((n, dim))
-            full[order] = vstar
-            vs[:n][own_fluid | own_solid] = full[own_fluid | own_solid]
+            self._halo(ctx, ["v_star"])
+        else:  # the paper's order: the viscous predictor (30) first
+            self._halo(ctx, ["nu", "a_self"] if coupled else ["nu"])
+            full, info_v, dt_asm = self._viscous_solve(ctx, visc, order, dt, g, morris, row,
+                                                       indptr, indices, fluid, solid)
+            t_asm += dt_asm
+            moved = own_fluid | own_solid
+            vs[:n][moved] = full[moved]
             p["v_ghost"][:n][wall] = full[wall]
-        self._halo(ctx, ["v_star"])
+            self._halo(ctx, ["v_star"])
+        # the solids' velocity change in the viscous solve (the exchange of eq. (47))
+        self.solid_viscous_dv = np.where(own_solid[:, None], vs[:n] - p["v"][:n], 0.0)
 
         t0 = time.perf_counter()
         # a step shorter than the CFL step (a fixed run.dt, a solid-limited coupled step)
@@ -457,7 +494,22 @@ class IISPH:
                                         indices, h, d, dim, mu, push,
                                         np.full(len(fluid), -1.0))
         p["v"][:n][own_fluid] = vnew[own_fluid]
-        p["x"][:n][own_fluid] += dt * vnew[own_fluid]
+        t_asm += time.perf_counter() - t0
+        if first:  # the viscous solve on the projected velocity, the new p in eq. (40)
+            t0 = time.perf_counter()
+            self._viscosity(ctx, gamma, fluid[:n])
+            t_asm += time.perf_counter() - t0
+            self._halo(ctx, ["nu"])
+            projected = p["v"][:n].copy()
+            full, info_v, dt_asm = self._viscous_solve(ctx, visc, order, dt, 0.0 * g, morris,
+                                                       row, indptr, indices, fluid, solid)
+            t_asm += dt_asm
+            moved = own_fluid | own_solid
+            p["v"][:n][moved] = full[moved]
+            p["v_ghost"][:n][wall] = full[wall]
+            self.solid_viscous_dv = np.where(own_solid[:, None], p["v"][:n] - projected, 0.0)
+        t0 = time.perf_counter()
+        p["x"][:n][own_fluid] += dt * p["v"][:n][own_fluid]
         div = assembly.divergence(x, p["v"], m, rho, fluid, indptr, indices, h, dim)
         inner = own_fluid & (free[:n] == 0)
         t_asm += time.perf_counter() - t0
