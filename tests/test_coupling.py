@@ -651,7 +651,7 @@ def test_slope_failure_converges(comm, mpi_tmp_path):
         assert change[0][1] < change[0][0], results  # the run-out
     volume = comm.bcast(change[1][1] < change[1][0] if comm.rank == 0 else None)
     if not volume:
-        # measured: 0.293, 0.276, 0.197 m^2; the band the plastic strain localises in
+        # measured: 0.258, 0.293, 0.224 m^2; the band the plastic strain localises in
         # narrows with d (no length scale in the model, docs/slope.md)
         pytest.xfail("the fluidised volume does not converge (0.035 -> 0.025 m changes it "
                      "more than 0.05 -> 0.035 m)")
