@@ -274,25 +274,31 @@ class IISPH:
             gnorm = float(np.linalg.norm(ctx.body_acceleration(ctx.time)))
             p["nu"][:n][fluid == 1] += self.num.numerical_viscosity * h * math.sqrt(gnorm * h)
 
-    def _viscous_solve(self, ctx, visc, order, dt, g, morris, row, indptr, indices, fluid,
-                       solid):
+    def _viscous_solve(self, ctx, visc, order, dt, g, morris, m, row, indptr, indices, fluid,
+                       solid, moved, wall, out):
         """The implicit viscous system (30)/(34) on the present ``v`` plus ``dt g``.
 
-        Returns the solution per owned row (fluid and type-II rows: their new velocity;
-        wall rows: their no-slip ghost velocity), the solve's info and the assembly time.
+        Writes the new velocity of the ``moved`` rows (fluid and type II) to ``out`` and the
+        no-slip ghost velocity of the ``wall`` rows to ``v_ghost``; keeps the type-II rows'
+        velocity change in ``solid_viscous_dv`` (the viscous exchange of eq. (47)).
+        Returns the solve's info and the assembly time.
         """
         p, n, dim, h = ctx.particles, ctx.n_owned, ctx.dim, ctx.h
         t0 = time.perf_counter()
         ptr, cols, vals = self._csr_buffers(visc, dim * dim * (indptr[n] + n))
         nnz, rhs = assembly.viscous_csr(
-            p["x"], p["v"], self._mass, p["rho"], p["nu"], fluid, solid, p["wall_slip"], row,
+            p["x"], p["v"], m, p["rho"], p["nu"], fluid, solid, p["wall_slip"], row,
             indptr, indices, h, dim, dt, g, morris, visc.offset // dim, ptr, cols, vals)
         visc.assemble_csr(ptr, cols[:nnz], vals[:nnz])
         t_asm = time.perf_counter() - t0
         vstar, info = visc.solve(rhs[order], x0=p["v"][:n][order])
         full = np.zeros((n, dim))
         full[order] = vstar
-        return full, info, t_asm
+        self.solid_viscous_dv = np.where((solid[:n] > 0)[:, None] & moved[:, None],
+                                         full - p["v"][:n], 0.0)
+        out[:n][moved] = full[moved]
+        p["v_ghost"][:n][wall] = full[wall]
+        return info, t_asm
 
     def step(self, ctx, dt, coupling=None) -> None:
         r"""Advance the owned fluid particles from t to t + dt (eqs. (30)-(37)).
@@ -369,8 +375,9 @@ class IISPH:
         first = not explicit and self.num.splitting == "projection_first"
         vs = p["v_star"]
         vs[:n] = p["v"][:n]  # walls and solids: their velocity (the fluid rows: below)
-        self._mass = m
         info_v = dict(iterations=0, residual_norm=0.0, time_s=0.0)
+        moved = own_fluid | own_solid  # the rows whose velocity the viscous solve sets
+        self.solid_viscous_dv = np.zeros((n, dim))
         if first:  # the PPE's predictor: the body force alone
             vs[:n][own_fluid] += dt * g
             self._halo(ctx, ["v_star", "a_self"] if coupled else ["v_star"])
@@ -389,15 +396,10 @@ class IISPH:
             self._halo(ctx, ["v_star"])
         else:  # the paper's order: the viscous predictor (30) first
             self._halo(ctx, ["nu", "a_self"] if coupled else ["nu"])
-            full, info_v, dt_asm = self._viscous_solve(ctx, visc, order, dt, g, morris, row,
-                                                       indptr, indices, fluid, solid)
+            info_v, dt_asm = self._viscous_solve(ctx, visc, order, dt, g, morris, m, row,
+                                                 indptr, indices, fluid, solid, moved, wall, vs)
             t_asm += dt_asm
-            moved = own_fluid | own_solid
-            vs[:n][moved] = full[moved]
-            p["v_ghost"][:n][wall] = full[wall]
             self._halo(ctx, ["v_star"])
-        # the solids' velocity change in the viscous solve (the exchange of eq. (47))
-        self.solid_viscous_dv = np.where(own_solid[:, None], vs[:n] - p["v"][:n], 0.0)
 
         t0 = time.perf_counter()
         # a step shorter than the CFL step (a fixed run.dt, a solid-limited coupled step)
@@ -500,14 +502,10 @@ class IISPH:
             self._viscosity(ctx, gamma, fluid[:n])
             t_asm += time.perf_counter() - t0
             self._halo(ctx, ["nu"])
-            projected = p["v"][:n].copy()
-            full, info_v, dt_asm = self._viscous_solve(ctx, visc, order, dt, 0.0 * g, morris,
-                                                       row, indptr, indices, fluid, solid)
+            info_v, dt_asm = self._viscous_solve(ctx, visc, order, dt, np.zeros(dim), morris,
+                                                 m, row, indptr, indices, fluid, solid, moved,
+                                                 wall, p["v"])
             t_asm += dt_asm
-            moved = own_fluid | own_solid
-            p["v"][:n][moved] = full[moved]
-            p["v_ghost"][:n][wall] = full[wall]
-            self.solid_viscous_dv = np.where(own_solid[:, None], p["v"][:n] - projected, 0.0)
         t0 = time.perf_counter()
         p["x"][:n][own_fluid] += dt * p["v"][:n][own_fluid]
         div = assembly.divergence(x, p["v"], m, rho, fluid, indptr, indices, h, dim)
