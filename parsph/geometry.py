@@ -100,10 +100,46 @@ class _Lattice:
         return min(total, int(math.ceil((frac + 4.0 * sigma) * total)))
 
 
+def _nearest_body_origin(scene: Scene, lo, hi):
+    """The lattice origin of the body nearest the box [lo, hi] within the kernel support
+    plus d, or None (no body that close)."""
+    d = scene.domain.particle_size
+    reach = 2.0 * H_OVER_D * d + d
+    best, origin = math.inf, None
+    for body in scene.bodies:
+        lat = _lattice(scene, body, False)
+        blo, bhi = lat.origin, lat.origin + lat.counts * d
+        gap = np.maximum(0.0, np.maximum(blo - hi, lo - bhi))
+        dist = float(np.sqrt((gap * gap).sum()))
+        if dist <= reach and dist < best:
+            best, origin = dist, lat.origin
+    return origin
+
+
+def _wall_box_lattice(scene: Scene, item) -> _Lattice:
+    """A box wall's lattice. Next to a body it continues that body's lattice: the centres
+    ``body origin + (k + 1/2) d`` that lie in [lo, hi], so the wall's first layer is d
+    from the body's last whatever the box's thickness (a 0.15 m floor at d = 0.035 m put
+    its top layer 1.29 d under the soil, and the soil dropped onto it: the slope's sliding
+    area doubled, docs/geometry.md). Elsewhere: from lo, as a body."""
+    d = scene.domain.particle_size
+    lo, hi = np.asarray(item.lo, dtype=float), np.asarray(item.hi, dtype=float)
+    body = _nearest_body_origin(scene, lo, hi)
+    if body is None:
+        return _Lattice(lo, _counts(lo, hi, d), None)
+    kmin = np.ceil((lo - body) / d - 0.5 - 1e-9)
+    kmax = np.floor((hi - body) / d - 0.5 + 1e-9)
+    origin = body + kmin * d
+    origin = np.where(np.abs(origin - lo) < 1e-9 * d, lo, origin)  # on the grid already
+    return _Lattice(origin, np.maximum(kmax - kmin + 1, 0).astype(np.int64), None)
+
+
 def _lattice(scene: Scene, item, is_wall: bool) -> _Lattice:
     d, dim = scene.domain.particle_size, scene.domain.dim
     shape = item.shape
     if shape == "box":
+        if is_wall:
+            return _wall_box_lattice(scene, item)
         return _Lattice(item.lo, _counts(item.lo, item.hi, d), None)
     if shape == "tank":
         layers = wall_layers(scene, item)

@@ -632,7 +632,7 @@ def test_slope_failure_at_a_finer_resolution(comm, mpi_tmp_path):
 def test_slope_failure_converges(comm, mpi_tmp_path):
     """d = 0.05, 0.035 and 0.025 m (docs/slope.md has the table): every run passes the
     checks, and the run-out and the fluidised volume converge, the change from 0.035 to
-    0.025 m being smaller than from 0.05 to 0.035 m (the volume does not yet: xfail)."""
+    0.025 m being smaller than from 0.05 to 0.035 m."""
     results = {}
     for d in (0.05, 0.035, 0.025):
         rows = _slope(comm, mpi_tmp_path, d)
@@ -649,12 +649,7 @@ def test_slope_failure_converges(comm, mpi_tmp_path):
         change = {k: (abs(results[0.035][k] - results[0.05][k]),
                       abs(results[0.025][k] - results[0.035][k])) for k in (0, 1)}
         assert change[0][1] < change[0][0], results  # the run-out
-    volume = comm.bcast(change[1][1] < change[1][0] if comm.rank == 0 else None)
-    if not volume:
-        # measured: 0.258, 0.293, 0.224 m^2; the band the plastic strain localises in
-        # narrows with d (no length scale in the model, docs/slope.md)
-        pytest.xfail("the fluidised volume does not converge (0.035 -> 0.025 m changes it "
-                     "more than 0.05 -> 0.035 m)")
+        assert change[1][1] < change[1][0], results  # the fluidised volume
 
 
 def _periodic_scene(copies, periodic, end):

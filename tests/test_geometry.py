@@ -60,6 +60,28 @@ def test_heightmap_body(comm, tmp_path):
     assert near_origin[:, 2].max() < 0.3
 
 
+@pytest.mark.parametrize("d", [0.05, 0.035])
+def test_box_walls_continue_the_lattice_of_the_body_they_touch(comm, d):
+    """slope_failure's 0.15 m floor and back wall at any d: the wall's first layer is one
+    spacing from the soil's last, below it and behind it (0.15 / 0.035 is no whole number
+    of layers: the floor's top layer was 1.29 d under the soil), and the floor stays in
+    its box; at d = 0.05 m the walls are the same as laid from their lower corner."""
+    scn = load_scene("slope_failure", [f"domain.particle_size={d}"])
+    ids, x, phase = gather_particles(comm, generate(comm, scn))
+    soil, wall = x[phase != PHASE_WALL], x[phase == PHASE_WALL]
+    floor = wall[wall[:, 1] < 0.0]
+    back = wall[wall[:, 1] > 0.0]
+    assert soil[:, 1].min() - floor[:, 1].max() == pytest.approx(d)
+    assert back[:, 0].min() - soil[:, 0].max() == pytest.approx(d)
+    # columns continue: the floor's x and the soil's x are on one lattice
+    assert np.allclose(np.remainder(floor[:, 0] - soil[0, 0] + 0.5 * d, d), 0.5 * d)
+    assert floor[:, 1].min() >= -0.15 and back[:, 0].max() <= 2.65
+    layers = len(np.unique(np.round(floor[:, 1], 9)))
+    assert layers == int(0.15 / d + 1e-9)  # whole layers that fit: the wall's thickness
+    if d == 0.05:
+        assert np.isclose(floor[:, 1].max(), -0.025) and np.isclose(back[:, 0].min(), 2.525)
+
+
 @pytest.mark.mpi
 def test_ids_independent_of_rank_count(comm, tmp_path):
     path = write(tmp_path, MOVING_2D) if comm.rank == 0 else None
