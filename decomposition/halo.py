@@ -481,12 +481,13 @@ def proximity_halo(comm, x_owned, select, radius: float, lo, hi, box=None) -> Ha
 def coupled_halo(comm, x_owned, solid, fluid, radius: float, box=None) -> Halo:
     """Collective: the current-configuration halo of a coupled scene (mixed layout).
 
-    Solid rows are owned by their reference position, the others by their current
-    one (``docs/coupling.md``), so the owned rows of a rank are two compact groups.
-    Rank ``q`` receives every row within ``radius`` of the bounding box of its non-solid
-    rows (fluid and walls: their neighbours of any kind) and every row within ``radius``
-    of the bounding box of its solid rows (the fluid neighbours that make a solid row
-    type II, paper Fig. 2, and the support density that decides its contact). No copies
+    Solid rows are owned by their reference position, fluid and wall rows by their
+    current one, each kind by a partition of its own (``docs/decomposition.md``), so the
+    owned rows of a rank are three compact groups. Rank ``q`` receives every row within
+    ``radius`` of the bounding box of its fluid rows and of its wall rows (their
+    neighbours of any kind), and every row within ``radius`` of the bounding box of its
+    solid rows (the fluid neighbours that make a solid row type II, paper Fig. 2, and the
+    support density that decides its contact). No copies
     to self except periodic images: with a periodic ``box`` every rank, itself included,
     also gets the images of the rows within reach (the exchange shifts their ``x`` and
     ``X``). A negative ``radius`` gives an empty pattern (no fluid anywhere).
@@ -511,7 +512,7 @@ def coupled_halo(comm, x_owned, solid, fluid, radius: float, box=None) -> Halo:
             return np.full(dim, np.inf), np.full(dim, -np.inf)
         return pts.min(axis=0), pts.max(axis=0)
 
-    boxes = comm.allgather((bbox(~solid), bbox(solid)))
+    boxes = comm.allgather((bbox(fluid), bbox(~solid & ~fluid), bbox(solid)))
     # every row near either box of each rank; to itself only the periodic images
     periodic = box is not None and box.any_periodic
     send, shift = _image_send_lists(comm, x, [list(b) for b in boxes], radius,

@@ -33,7 +33,6 @@ import glob
 import json
 import math
 import os
-import re
 import statistics
 import subprocess
 import sys
@@ -43,7 +42,7 @@ import time
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from benchlib import record, worker_line  # noqa: E402
+from benchlib import mpirun_parsph, record, worker_line  # noqa: E402
 
 A, RHO, NU, G = 0.146, 1000.0, 1.0e-6, 9.81  # as parsph/scenes/dam_break.toml
 TANK_LENGTH, TANK_HEIGHT = 4.0 * A, 0.35
@@ -164,21 +163,11 @@ def run_pysph(py, work, tag, d, end, every):
 
 
 def run_parsph(ranks, out, d, end, every, extra=()):
-    """One parsph run into ``out``; its files are read later by :func:`read_parsph` (the
-    driver must not initialise MPI, which h5py/mpi4py would, before it starts mpirun)."""
+    """One parsph run into ``out``; its files are read later by :func:`read_parsph`."""
     sets = [f"domain.particle_size={d!r}", f"run.end_time={end!r}", f"output.every={every!r}",
             *extra]
-    cmd = ["mpirun", "-n", str(ranks), sys.executable, "-m", "parsph", "run", "dam_break",
-           "--out", out, "--no-progress"] + [x for s in sets for x in ("--set", s)]
-    t0 = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True)
-    wall = time.perf_counter() - t0
-    if proc.returncode:
-        sys.exit(f"parsph failed ({proc.returncode}):\n{proc.stdout[-2000:]}\n"
-                 f"{proc.stderr[-3000:]}")
-    done = re.search(r"done: (\d+) steps to t = (\S+) s in (\S+) s wall", proc.stderr)
-    return dict(out=out, d=d, steps=int(done.group(1)), t_end=float(done.group(2)),
-                run_s=float(done.group(3)), process_s=wall, neighbours=lattice_neighbours(2.4))
+    return dict(out=out, d=d, neighbours=lattice_neighbours(2.4),
+                **mpirun_parsph(ranks, "dam_break", out, sets))
 
 
 def read_parsph(res):

@@ -9,7 +9,9 @@ from __future__ import annotations
 import csv
 import os
 import re
+import subprocess
 import sys
+import time
 
 COLUMNS = ["benchmark", "code", "dim", "particles", "ranks", "metric", "value"]
 
@@ -78,3 +80,30 @@ def run_benchmark(comm, scene, overrides=(), petsc_args=()):
     if comm.rank == 0:
         shutil.rmtree(tmp, ignore_errors=True)
     return summary, stats
+
+
+def mpirun_parsph(ranks: int, scene: str, out: str, sets=()) -> dict:
+    """Run ``parsph run SCENE --out OUT`` under ``mpirun -n RANKS`` (one ``--set`` per
+    entry of ``sets``) and read its ``done:`` line robustly (ranks' output may carry
+    terminal codes). Returns ``steps``, ``t_end`` (s), ``run_s`` (parsph's own timer:
+    particle build and steps) and ``process_s`` (the whole process, s); exits with the
+    command and its output when the run fails or its line cannot be read. The caller
+    must not have initialised MPI (h5py/mpi4py would) before it starts mpirun."""
+    exe = os.path.join(os.path.dirname(sys.executable), "parsph")
+    prog = [exe] if os.path.isfile(exe) else [sys.executable, "-m", "parsph"]
+    cmd = ["mpirun", "-n", str(ranks), *prog, "run", scene, "--out", out, "--no-progress"]
+    cmd += [x for s in sets for x in ("--set", s)]
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    if proc.returncode:
+        sys.exit(f"parsph failed ({proc.returncode}): {' '.join(cmd)}\n{proc.stdout[-2000:]}\n"
+                 f"{proc.stderr[-3000:]}")
+    what = f"parsph run ({' '.join(cmd)}), its log"
+    done = re.match(r"(\d+) steps to t = (\S+) s in (\S+) s wall",
+                    worker_line(proc.stderr, "done: ", what))
+    if done is None:
+        sys.exit(f"{what}: its 'done:' line does not read 'N steps to t = T s in W s wall':\n"
+                 f"{proc.stderr[-2000:]}")
+    return dict(steps=int(done.group(1)), t_end=float(done.group(2)),
+                run_s=float(done.group(3)), process_s=wall)

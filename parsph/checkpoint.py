@@ -79,7 +79,7 @@ def _open(path, mode, comm):
 
 
 def write(path: str, comm, particles, rcb, meta: dict, stage_states: dict, fault=None,
-          rcb_ref=None) -> None:
+          rcb_ref=None, rcb_wall=None) -> None:
     """Collective: write a checkpoint atomically (temporary file, then rename).
 
     Parameters
@@ -87,7 +87,9 @@ def write(path: str, comm, particles, rcb, meta: dict, stage_states: dict, fault
     particles : ParticleSet
         Its owned rows of every field are written.
     rcb : RCB
-        The current partition.
+        The current partition (mixed layout: of the fluid rows).
+    rcb_ref, rcb_wall : RCB, optional
+        Mixed layout: the solids' partition (by X) and the walls'.
     meta : dict
         Scalars stored as root attributes (time, step, next_frame, …).
     stage_states : dict of str to dict
@@ -114,7 +116,7 @@ def write(path: str, comm, particles, rcb, meta: dict, stage_states: dict, fault
             dset = grp.create_dataset(name, shape=(total,) + arr.shape[1:], dtype=arr.dtype)
             if n:
                 dset[offset:offset + n] = arr
-        for name, part in (("rcb", rcb), ("rcb_ref", rcb_ref)):
+        for name, part in (("rcb", rcb), ("rcb_ref", rcb_ref), ("rcb_wall", rcb_wall)):
             if part is None:
                 continue
             rgrp = f.create_group(name)
@@ -197,12 +199,12 @@ def read(path: str, comm, scene) -> Checkpoint:
             stop = total * (comm.rank + 1) // comm.size
         fields = {name: dset[start:stop] for name, dset in f["fields"].items()}
         rcb = RCB.from_arrays({k: v[...] for k, v in f["rcb"].items()}) if same else None
-        rcb_ref = RCB.from_arrays({k: v[...] for k, v in f["rcb_ref"].items()}) \
-            if same and "rcb_ref" in f else None
+        rcb_ref, rcb_wall = (RCB.from_arrays({k: v[...] for k, v in f[name].items()})
+                             if same and name in f else None for name in ("rcb_ref", "rcb_wall"))
         states = {s: {k: (v[()] if v.shape == () else v[...]) for k, v in g.items()}
                   for s, g in f["stages"].items()}
     finally:
         f.close()
     ck = Checkpoint(fields, rcb, meta, states)
-    ck.rcb_ref = rcb_ref
+    ck.rcb_ref, ck.rcb_wall = rcb_ref, rcb_wall
     return ck

@@ -63,6 +63,8 @@ class Context:
     radius: float
     rcb: RCB = None
     rcb_ref: RCB = None
+    #: mixed layout: the walls' partition (``rcb`` is then the fluid's)
+    rcb_wall: RCB = None
     #: set when the solids' partition (by X) was rebuilt: their view must be rebuilt too
     solids_moved: bool = False
     halo: Halo = None
@@ -202,15 +204,28 @@ def _work(phase) -> np.ndarray:
     return np.where(phase == PHASE_WALL, WALL_WORK, 1.0)
 
 
+def _unbalanced(comm, count, tolerance: float) -> bool:
+    """Collective: the largest owned ``count`` exceeds ``tolerance`` times the mean, by
+    at least one row (3 rows on 2 ranks are as balanced as they can be). ``count`` is
+    this rank's count, or an array of the counts each rank will own (summed over ranks)."""
+    if np.ndim(count):
+        counts = global_sum(comm, np.asarray(count, dtype=np.int64))
+        total, largest = int(counts.sum()), int(counts.max())
+    else:
+        total, largest = global_sum(comm, count), global_max(comm, count)
+    return largest * comm.size > tolerance * total and largest - total / comm.size >= 1.0
+
+
 def _distribute(ctx, force: bool = False) -> None:
     """Migrate particles to their owners; rebuild the partition when unbalanced.
 
     The partition follows ``ctx.key``: current positions ``x`` (fluids: particles
     migrate as they move), or reference positions ``X`` (TLSPH solids: ownership, halo
     and neighbour lists are fixed for the whole run). It balances work, not particles:
-    walls weigh :data:`WALL_WORK`. In the mixed layout (coupled scenes) the solids are
-    partitioned by ``X`` and the other rows by ``x``, each re-partitioned when its owned
-    counts (work) exceed ``run.rebalance_tolerance`` times the mean.
+    walls weigh :data:`WALL_WORK`. In the mixed layout (coupled scenes) each kind has a
+    partition of its own: the solids by ``X``, the walls and the fluid by ``x``; the
+    solids' and the fluid's are re-partitioned when their counts exceed
+    ``run.rebalance_tolerance`` times the mean (docs/decomposition.md).
     """
     p, comm, key = ctx.particles, ctx.comm, ctx.key
     owned = p.owned_fields()
@@ -222,16 +237,30 @@ def _distribute(ctx, force: bool = False) -> None:
         owned["x"] = wrapped if keep is None else np.where(keep[:, None], owned["x"], wrapped)
     tolerance = ctx.scene.run.rebalance_tolerance
     work = _work(owned["phase"])
-    if ctx.layout == "mixed":  # solids by X (fixed), the other rows by x
-        solid = owned["phase"] == PHASE_SOLID
+    if ctx.layout == "mixed":  # solids by X, walls and fluid by x, each balanced on its own
+        phase = owned["phase"]
+        solid, wall = phase == PHASE_SOLID, phase == PHASE_WALL
+        fluid = ~solid & ~wall
         # the solids' partition is fixed by X, but the phase change empties the ranks
         # that hold the failing toe: rebuilt when their counts drift past the tolerance
-        if force or ctx.rcb_ref is None or imbalance(comm, float(solid.sum())) > tolerance:
+        if force or ctx.rcb_ref is None or _unbalanced(comm, int(solid.sum()), tolerance):
             ctx.solids_moved = ctx.rcb_ref is not None
             ctx.rcb_ref = RCB.build(comm, owned["X"][solid], ctx.box)
-        if force or ctx.rcb is None or imbalance(comm, float(work[~solid].sum())) > tolerance:
-            ctx.rcb = RCB.build(comm, owned["x"][~solid], ctx.box, weights=work[~solid])
-        dest = np.where(solid, ctx.rcb_ref.owner(owned["X"]), ctx.rcb.owner(owned["x"]))
+        # the walls do not move: one partition of their own. One partition for walls and
+        # fluid balanced their summed work, not the fluid: aso_like at d = 4 m had 6 and
+        # 1,684 fluid rows on its 2 ranks (docs/decomposition.md)
+        if force or ctx.rcb_wall is None or _unbalanced(comm, int(wall.sum()), tolerance):
+            ctx.rcb_wall = RCB.build(comm, owned["x"][wall], ctx.box)
+        n_fluid = int(global_sum(comm, int(fluid.sum())))
+        # the counts each rank would own under the current cuts: the rows that fluidised
+        # in the last step are still on the rank that held them as solids
+        after = None if ctx.rcb is None else np.bincount(
+            ctx.rcb.owner(owned["x"][fluid]), minlength=comm.size)
+        if force or ctx.rcb is None or (n_fluid and _unbalanced(comm, after, tolerance)):
+            # before any soil fluidises: the walls' cuts (a fluid row's owner is defined)
+            ctx.rcb = RCB.build(comm, owned["x"][fluid], ctx.box) if n_fluid else ctx.rcb_wall
+        dest = np.where(solid, ctx.rcb_ref.owner(owned["X"]),
+                        np.where(wall, ctx.rcb_wall.owner(owned["x"]), ctx.rcb.owner(owned["x"])))
         p.set_owned(migrate(comm, owned, dest))
         return
     rebuilt = force or ctx.rcb is None or imbalance(comm, float(work.sum())) > tolerance
@@ -476,6 +505,7 @@ def _build(scene, out, comm, petsc_args, restart):
         ctx.time, ctx.step = float(ck.meta["time"]), int(ck.meta["step"])
         ctx.rcb = ck.rcb  # None at another rank count: re-partitioned below
         ctx.rcb_ref = ck.rcb_ref  # mixed layout: the solids' partition (fixed by X)
+        ctx.rcb_wall = ck.rcb_wall  # and the partition of the walls
     if uses_petsc(specs):  # only then is petsc4py imported
         import solvers
 
@@ -564,7 +594,8 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
                 "elastic_energy": last["ee"]}
         states = {s.name: s.state() for s in stages if hasattr(s, "state")}
         checkpoint.write(ck_path, comm, particles, ctx.rcb, meta, states,
-                         fault=faults.checkpoint_fault(ctx.step), rcb_ref=ctx.rcb_ref)
+                         fault=faults.checkpoint_fault(ctx.step), rcb_ref=ctx.rcb_ref,
+                         rcb_wall=ctx.rcb_wall)
 
     def at_sync_step():
         return ctx.step % ctx.sync_every == 0

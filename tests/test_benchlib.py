@@ -23,3 +23,27 @@ def test_worker_line_names_the_worker_and_shows_its_output():
         worker_line("Traceback (most recent call last):\n  boom\n", "PARSPH ", "parsph worker")
     text = str(err.value)
     assert "parsph worker" in text and "'PARSPH'" in text and "boom" in text
+
+
+def test_splishsplash_fluid_block_matches_the_parsph_column(comm, tmp_path):
+    """jobs/bench_splishsplash.py: both codes get n x n x 2n fluid particles at the same
+    centres (k + 1/2) d (SPlisHSPlasH: x along, y up, z across; parsph: z up)."""
+    import numpy as np
+
+    from bench_splishsplash import A, block_axes, column_divisions, fluid_block, parsph_scene
+    from parsph.geometry import generate
+    from parsph.materials import PHASE_FLUID
+    from parsph.scene import load_scene
+    from tests.scenes import gather_particles, write
+
+    assert column_divisions(24000) == 23 and column_divisions(spacing=A / 37) == 37
+    n, d = 5, A / 5
+    axes = block_axes(*fluid_block(n), 0.5 * d)
+    assert [len(a) for a in axes] == [n, 2 * n, n]
+    _, x, phase = gather_particles(comm, generate(comm, load_scene(
+        write(tmp_path, parsph_scene(n, 0.01)))))
+    fluid = x[phase == PHASE_FLUID]
+    assert len(fluid) == 2 * n ** 3
+    for ax, block_ax in zip(range(3), (0, 2, 1)):
+        assert np.allclose(np.unique(fluid[:, ax].round(12)), axes[block_ax])
+        assert np.allclose(axes[block_ax], (np.arange(len(axes[block_ax])) + 0.5) * d)

@@ -349,9 +349,10 @@ def test_phase_change_of_every_particle_at_once(comm, mpi_tmp_path):
     assert np.allclose(mom1, mom0, rtol=1e-12, atol=1e-15)
     if comm.rank == 0:
         assert np.array_equal(np.sort(np.concatenate(ids0)), np.sort(np.concatenate(ids1)))
-    # the owner is now the current-position partition
-    x = p["x"][:ctx.n_owned]
-    assert np.all(ctx.rcb.owner(x) == comm.rank)
+    # the owner is now the fluid's current-position partition (walls: their own)
+    x, wall = p["x"][:ctx.n_owned], p["phase"][:ctx.n_owned] == 2
+    assert np.all(ctx.rcb.owner(x[~wall]) == comm.rank)
+    assert np.all(ctx.rcb_wall.owner(x[wall]) == comm.rank)
     for _ in range(10):  # and it runs on as a fluid
         dt = stage.max_dt(ctx)
         stage.step(ctx, dt)
@@ -536,12 +537,14 @@ def test_slope_failure_fluidises_and_runs_out_further(comm, mpi_tmp_path):
     if comm.rank == 0:
         _slope_checks(rows, 0.05)
         # both phases stay balanced as the toe fluidises (the solids' partition by X is
-        # rebuilt when their counts drift: 250 against 441 per rank before)
+        # rebuilt when their counts drift: 250 against 441 per rank before; the fluid has
+        # a partition of its own, apart from the walls')
         tolerance = solid.run.rebalance_tolerance
         for r in rows:
-            lo, hi = float(r["n_solid_rank_min"]), float(r["n_solid_rank_max"])
-            mean = float(r["n_solid"]) / comm.size
-            assert hi <= tolerance * mean + 1, (r["time"], lo, hi)
+            for kind in ("solid", "fluid"):
+                lo, hi = float(r[f"n_{kind}_rank_min"]), float(r[f"n_{kind}_rank_max"])
+                mean = float(r[f"n_{kind}"]) / comm.size
+                assert hi <= tolerance * mean + 1, (kind, r["time"], lo, hi)
         # the TLSPH-only slope has stopped by 0.7 s; the fluidised slide runs out on the
         # floor (1.23 m at 3 s, the slide under way by 0.7 s at 0.29 m)
         assert float(_stats(out)[-1]["front"]) < 0.2
@@ -590,12 +593,13 @@ def test_periodic_coupled_scene_equals_its_closed_twin(comm, mpi_tmp_path):
 
 
 @pytest.mark.mpi(min_size=2)
-def test_solid_partition_follows_the_failing_toe(comm, mpi_tmp_path):
+def test_partitions_follow_the_failing_toe(comm, mpi_tmp_path):
     """The solids are owned by their reference position; as the toe fluidises the rank
-    holding it loses solids. With run.rebalance_tolerance = 1.05 their partition is
-    rebuilt whenever the largest owned count passes 1.05 x the mean: every stats row
-    stays within it, the run keeps the energy bound, and a restart after such rebuilds
-    is still bit for bit."""
+    holding it loses solids, and the new fluid runs out over the floor. With
+    run.rebalance_tolerance = 1.05 the solids' partition and the fluid's (apart from the
+    walls') are rebuilt whenever the largest owned count passes 1.05 x the mean: every
+    stats row stays within it, the run keeps the energy bound, and a restart after such
+    rebuilds is still bit for bit."""
     sets = ["run.rebalance_tolerance=1.05", "output.every=0.4", "output.progress=false"]
     whole, first = (os.path.join(mpi_tmp_path, k) for k in ("whole", "first"))
     run(load_scene("slope_failure", sets + ["run.end_time=1.2"]), whole, comm=comm,
@@ -611,6 +615,8 @@ def test_solid_partition_follows_the_failing_toe(comm, mpi_tmp_path):
             mean = float(r["n_solid"]) / comm.size
             highs.append(float(r["n_solid_rank_max"]))
             assert float(r["n_solid_rank_max"]) <= 1.05 * mean + 1, r["time"]
+            mean = float(r["n_fluid"]) / comm.size
+            assert float(r["n_fluid_rank_max"]) <= 1.05 * mean + 1, r["time"]
         assert max(highs) > min(highs)  # the partition moved with the fluidising toe
         assert max(float(r["energy_ratio"]) for r in rows) <= 1.0
         a, b = last_frame(first), last_frame(whole)
