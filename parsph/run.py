@@ -204,16 +204,11 @@ def _work(phase) -> np.ndarray:
     return np.where(phase == PHASE_WALL, WALL_WORK, 1.0)
 
 
-def _unbalanced(comm, count, tolerance: float) -> bool:
-    """Collective: the largest owned ``count`` exceeds ``tolerance`` times the mean, by
-    at least one row (3 rows on 2 ranks are as balanced as they can be). ``count`` is
-    this rank's count, or an array of the counts each rank will own (summed over ranks)."""
-    if np.ndim(count):
-        counts = global_sum(comm, np.asarray(count, dtype=np.int64))
-        total, largest = int(counts.sum()), int(counts.max())
-    else:
-        total, largest = global_sum(comm, count), global_max(comm, count)
-    return largest * comm.size > tolerance * total and largest - total / comm.size >= 1.0
+def _unbalanced(counts, tolerance: float) -> bool:
+    """The largest of the ranks' ``counts`` exceeds ``tolerance`` times their mean, by at
+    least one row (3 rows on 2 ranks are as balanced as they can be)."""
+    total, largest = int(counts.sum()), int(counts.max())
+    return largest * len(counts) > tolerance * total and largest - total / len(counts) >= 1.0
 
 
 def _distribute(ctx, force: bool = False) -> None:
@@ -238,29 +233,39 @@ def _distribute(ctx, force: bool = False) -> None:
     tolerance = ctx.scene.run.rebalance_tolerance
     work = _work(owned["phase"])
     if ctx.layout == "mixed":  # solids by X, walls and fluid by x, each balanced on its own
-        phase = owned["phase"]
+        phase, x = owned["phase"], owned["x"]
         solid, wall = phase == PHASE_SOLID, phase == PHASE_WALL
         fluid = ~solid & ~wall
+        # the walls do not move: a partition of their own, built once. One partition for
+        # walls and fluid balanced their summed work, not the fluid: aso_like at d = 4 m
+        # had 6 and 1,684 fluid rows on its 2 ranks (docs/decomposition.md)
+        if force or ctx.rcb_wall is None:
+            ctx.rcb_wall = RCB.build(comm, x[wall], ctx.box)
+        # per rank, in one reduction: the solids it owns, and the fluid rows it would own
+        # under the present cuts (those that fluidised in the last step are still on the
+        # rank that held them as solids)
+        counts = np.zeros((2, comm.size), dtype=np.int64)
+        counts[0, comm.rank] = solid.sum()
+        to = None if ctx.rcb is None else ctx.rcb.owner(x[fluid])
+        if to is None:
+            counts[1, comm.rank] = fluid.sum()
+        else:
+            counts[1] = np.bincount(to, minlength=comm.size)
+        counts = global_sum(comm, counts)
         # the solids' partition is fixed by X, but the phase change empties the ranks
         # that hold the failing toe: rebuilt when their counts drift past the tolerance
-        if force or ctx.rcb_ref is None or _unbalanced(comm, int(solid.sum()), tolerance):
+        if force or ctx.rcb_ref is None or _unbalanced(counts[0], tolerance):
             ctx.solids_moved = ctx.rcb_ref is not None
             ctx.rcb_ref = RCB.build(comm, owned["X"][solid], ctx.box)
-        # the walls do not move: one partition of their own. One partition for walls and
-        # fluid balanced their summed work, not the fluid: aso_like at d = 4 m had 6 and
-        # 1,684 fluid rows on its 2 ranks (docs/decomposition.md)
-        if force or ctx.rcb_wall is None or _unbalanced(comm, int(wall.sum()), tolerance):
-            ctx.rcb_wall = RCB.build(comm, owned["x"][wall], ctx.box)
-        n_fluid = int(global_sum(comm, int(fluid.sum())))
-        # the counts each rank would own under the current cuts: the rows that fluidised
-        # in the last step are still on the rank that held them as solids
-        after = None if ctx.rcb is None else np.bincount(
-            ctx.rcb.owner(owned["x"][fluid]), minlength=comm.size)
-        if force or ctx.rcb is None or (n_fluid and _unbalanced(comm, after, tolerance)):
+        n_fluid = int(counts[1].sum())
+        if force or to is None or (n_fluid and _unbalanced(counts[1], tolerance)):
             # before any soil fluidises: the walls' cuts (a fluid row's owner is defined)
-            ctx.rcb = RCB.build(comm, owned["x"][fluid], ctx.box) if n_fluid else ctx.rcb_wall
-        dest = np.where(solid, ctx.rcb_ref.owner(owned["X"]),
-                        np.where(wall, ctx.rcb_wall.owner(owned["x"]), ctx.rcb.owner(owned["x"])))
+            ctx.rcb = RCB.build(comm, x[fluid], ctx.box) if n_fluid else ctx.rcb_wall
+            to = ctx.rcb.owner(x[fluid])
+        dest = np.empty(len(phase), dtype=np.int32)
+        dest[solid] = ctx.rcb_ref.owner(owned["X"][solid])
+        dest[wall] = ctx.rcb_wall.owner(x[wall])
+        dest[fluid] = to
         p.set_owned(migrate(comm, owned, dest))
         return
     rebuilt = force or ctx.rcb is None or imbalance(comm, float(work.sum())) > tolerance
