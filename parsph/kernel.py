@@ -43,8 +43,12 @@ where :math:`F` (:func:`fac_grad`) is evaluated in the cancelled form
 the one entering eqs. (34)-(36) (fluid) and, after correction, the TLSPH gradient of
 section 3.
 
-The numba functions take ``dim`` (1, 2 or 3) as an argument; inlined into a loop where
-``h`` and ``dim`` are invariant, the normalisation is hoisted by the compiler.
+The numba functions take ``dim`` (1, 2 or 3) as an argument. Pair loops use the
+``_k`` variants instead, which take the tuple :func:`constants` computed once per loop
+(1/h, the normalisation and its ratio to h^2): a divide by h and the normalisation's
+power per pair made the fluid's sums 1.4x slower. With :func:`delta` (one pair's
+separation in scalars) a loop keeps its accumulators in registers; array accumulators
+indexed by a run-time ``dim`` made the same loops 2-5x slower (docs/performance.md).
 
 References
 ----------
@@ -74,6 +78,11 @@ __all__ = [
     "w_array",
     "dw_dr_array",
     "fac_grad_array",
+    "constants",
+    "w_k",
+    "fac_grad_k",
+    "w_and_fac_grad_k",
+    "delta",
 ]
 
 #: Smoothing length over particle diameter, :math:`h = 1.2 d` (paper, section 2).
@@ -286,3 +295,58 @@ def dw_dr_array(r, h, dim):
 def fac_grad_array(r, h, dim):
     """Vectorised :func:`fac_grad`; same conventions as :func:`w_array`."""
     return _array_call(r, h, dim, 2)
+
+
+@njit(cache=True, inline="always")
+def constants(h, dim):
+    r"""The per-loop constants of the ``_k`` functions: :math:`(1/h, \sigma_D, \sigma_D/h^2)`."""
+    s = normalisation(h, dim)
+    return 1.0 / h, s, s / (h * h)
+
+
+@njit(cache=True, inline="always")
+def w_k(r, k):
+    """:func:`w` with the constants ``k`` of :func:`constants` (no division)."""
+    q = r * k[0]
+    if q < 1.0:
+        return k[1] * (1.0 - 1.5 * q * q + 0.75 * q * q * q)
+    elif q < 2.0:
+        t = 2.0 - q
+        return k[1] * 0.25 * t * t * t
+    return 0.0
+
+
+@njit(cache=True, inline="always")
+def fac_grad_k(r, k):
+    r""":func:`fac_grad` with the constants ``k`` of :func:`constants`: one division, by
+    :math:`q`, on the outer branch (:math:`\sigma_D h^{-2} (-\tfrac34 (2 - q)^2) / q`)."""
+    q = r * k[0]
+    if q < 1.0:
+        return k[2] * (-3.0 + 2.25 * q)
+    elif q < 2.0:
+        t = 2.0 - q
+        return k[2] * (-0.75 * t * t) / q
+    return 0.0
+
+
+@njit(cache=True, inline="always")
+def w_and_fac_grad_k(r, k):
+    """``(W, F)`` of one distance, sharing q (density and its gradient in one pass)."""
+    q = r * k[0]
+    if q < 1.0:
+        return k[1] * (1.0 - 1.5 * q * q + 0.75 * q * q * q), k[2] * (-3.0 + 2.25 * q)
+    elif q < 2.0:
+        t = 2.0 - q
+        return k[1] * 0.25 * t * t * t, k[2] * (-0.75 * t * t) / q
+    return 0.0, 0.0
+
+
+@njit(cache=True, inline="always")
+def delta(x, i, j, dim):
+    r"""``(d0, d1, d2, r2)``: :math:`\mathbf x_i - \mathbf x_j` of rows ``i``, ``j`` of an
+    (N, dim) array as three scalars (``d2 = 0`` in 2D) and its squared length, summed
+    over the axes in order (the neighbour search's test, bit for bit)."""
+    d0 = x[i, 0] - x[j, 0]
+    d1 = x[i, 1] - x[j, 1]
+    d2 = x[i, 2] - x[j, 2] if dim == 3 else 0.0
+    return d0, d1, d2, d0 * d0 + d1 * d1 + d2 * d2

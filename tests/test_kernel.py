@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from numba import njit
 
 from parsph import kernel as K
 
@@ -193,3 +194,50 @@ def test_gradient_moment_on_paper_lattice(dim, expect):
     assert np.allclose(moment - np.diag(np.diag(moment)), 0.0, atol=1e-14)
     assert np.allclose(d**dim * grad.sum(axis=0), 0.0, atol=1e-14)
     assert np.allclose(moment, -np.eye(dim), atol=2.5e-2)
+
+
+@njit
+def _k_values(r, h, dim):
+    k = K.constants(h, dim)
+    out = np.empty((r.shape[0], 4))
+    for n in range(r.shape[0]):
+        out[n, 0] = K.w_k(r[n], k)
+        out[n, 1] = K.fac_grad_k(r[n], k)
+        out[n, 2], out[n, 3] = K.w_and_fac_grad_k(r[n], k)
+    return out
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_loop_forms_match_the_kernel(dim):
+    """The ``_k`` forms of the pair loops (constants hoisted, one division) are the kernel
+    and its gradient factor to round-off, on both branches, at the knots and beyond."""
+    h = 0.012
+    r = np.concatenate((np.linspace(0.0, 2.2 * h, 1001), [h, 2 * h, 1e-12]))
+    got = _k_values(r, h, dim)
+    w, f = K.w_array(r, h, dim), K.fac_grad_array(r, h, dim)
+    np.testing.assert_allclose(got[:, 0], w, rtol=1e-14, atol=1e-14 * abs(w).max())
+    np.testing.assert_allclose(got[:, 1], f, rtol=1e-14, atol=1e-14 * abs(f).max())
+    np.testing.assert_array_equal(got[:, 2], got[:, 0])
+    np.testing.assert_array_equal(got[:, 3], got[:, 1])
+
+
+@njit
+def _deltas(x, dim):
+    out = np.empty((x.shape[0], 4))
+    for i in range(x.shape[0]):
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = K.delta(x, i, 0, dim)
+    return out
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_delta_is_the_separation_and_its_square(dim):
+    x = np.random.default_rng(1).normal(size=(20, dim))
+    got = _deltas(x, dim)
+    sep = x - x[0]
+    np.testing.assert_array_equal(got[:, :dim], sep)
+    if dim == 2:
+        assert not got[:, 2].any()
+    r2 = np.zeros(len(x))
+    for a in range(dim):  # summed over the axes in order, as the neighbour search does
+        r2 += sep[:, a] * sep[:, a]
+    np.testing.assert_array_equal(got[:, 3], r2)

@@ -59,22 +59,25 @@ import numpy as np
 from numba import njit
 
 from parsph.fluid.assembly import _column_slot
-from parsph.kernel import fac_grad
+from parsph.kernel import constants, delta, fac_grad_k
 
 __all__ = ["self_response", "response_blocks", "add_near_response", "solid_pressure_force"]
 
 
 @njit(cache=True, inline="always")
-def _grad(x, i, j, h, dim, out):
-    """``out`` = grad W_ij = F(r_ij) (x_i - x_j)."""
-    r2 = 0.0
-    for a in range(dim):
-        e = x[i, a] - x[j, a]
-        out[a] = e
-        r2 += e * e
-    f = fac_grad(math.sqrt(r2), h, dim)
-    for a in range(dim):
-        out[a] *= f
+def _grad(x, i, j, k, dim):
+    """grad W_ij = F(r_ij) (x_i - x_j) as three scalars (the third 0 in 2D); ``k`` the
+    kernel's :func:`parsph.kernel.constants`."""
+    d0, d1, d2, r2 = delta(x, i, j, dim)
+    f = fac_grad_k(math.sqrt(r2), k)
+    return f * d0, f * d1, f * d2
+
+
+@njit(cache=True, inline="always")
+def _dot(u0, u1, u2, v, i, dim):
+    """(u0, u1, u2) . row ``i`` of an (N, dim) array."""
+    acc = u0 * v[i, 0] + u1 * v[i, 1]
+    return acc + u2 * v[i, 2] if dim == 3 else acc
 
 
 @njit(cache=True)
@@ -84,20 +87,24 @@ def self_response(x, m, rho, rho0, fluid, solid, inv_mass, indptr, indices, h, d
     neighbours; zero for the other rows. Shape (n, dim)."""
     n = indptr.shape[0] - 1
     out = np.zeros((n, dim))
-    g = np.empty(dim)
+    k = constants(h, dim)
     for s in range(n):
         if solid[s] <= 0.0:
             continue
+        a0 = a1 = a2 = 0.0
         for q in range(indptr[s], indptr[s + 1]):
             f = indices[q]
             if not fluid[f]:
                 continue
-            _grad(x, s, f, h, dim, g)
+            g0, g1, g2 = _grad(x, s, f, k, dim)
             c = -m[s] * m[f] * (rho[f] / rho0[f]) / (rho[s] * rho[s])
-            for a in range(dim):
-                out[s, a] += c * g[a]
-        for a in range(dim):
-            out[s, a] *= inv_mass[s, a]
+            a0 += c * g0
+            a1 += c * g1
+            a2 += c * g2
+        out[s, 0] = a0 * inv_mass[s, 0]
+        out[s, 1] = a1 * inv_mass[s, 1]
+        if dim == 3:
+            out[s, 2] = a2 * inv_mass[s, 2]
     return out
 
 
@@ -135,9 +142,10 @@ def response_blocks(x, m, rho, rho0, fluid, free, solid, row, inv_mass, indptr, 
     cols = np.empty(cap * dim, np.int64)
     left = np.zeros(cap * dim)
     right = np.zeros(cap * dim)
-    g = np.empty(dim)
-    dss = np.empty(dim)
-    gss = np.empty(dim)
+    kc = constants(h, dim)
+    g = np.empty(3)
+    dss = np.empty(3)
+    gss = np.empty(3)
     half = 0.5 * d * d
     k = 0
     r = 0
@@ -173,7 +181,7 @@ def response_blocks(x, m, rho, rho0, fluid, free, solid, row, inv_mass, indptr, 
             f = indices[q]
             if not fluid[f]:
                 continue
-            _grad(x, s, f, h, dim, g)  # grad W_sf
+            g[0], g[1], g[2] = _grad(x, s, f, kc, dim)  # grad W_sf
             c = m[f] * rho[f] / rho0[f]
             for a in range(dim):
                 dss[a] -= m[f] * g[a]
@@ -218,8 +226,7 @@ def add_near_response(x, m, rho, rho0, fluid, free, solid, row, inv_mass, a_self
     n = indptr.shape[0] - 1
     nrows = ptr.shape[0] - 1
     half = 0.5 * d * d
-    dsi = np.empty(dim)
-    g = np.empty(dim)
+    kc = constants(h, dim)
     k = 0
     near_ptr[0] = 0
     order = np.empty(nrows, np.int64)
@@ -242,14 +249,11 @@ def add_near_response(x, m, rho, rho0, fluid, free, solid, row, inv_mass, a_self
                         near_cols[k + u - start] = cols[u]
                         near_vals[k + u - start] = 0.0
                     touched = True
-                _grad(x, i, s, h, dim, dsi)  # grad W_is
-                for a in range(dim):
-                    dsi[a] *= m[s]
+                g0, g1, g2 = _grad(x, i, s, kc, dim)  # grad W_is
+                e0, e1, e2 = m[s] * g0, m[s] * g1, m[s] * g2
                 if not free[s]:  # b = s: the particle's own pressure
                     u = _column_slot(cols, start, stop - start, row[s])
-                    val = 0.0
-                    for a in range(dim):
-                        val += dsi[a] * a_self[s, a]
+                    val = _dot(e0, e1, e2, a_self, s, dim)
                     vals[start + u] += half * val
                     near_vals[k + u] += half * val
                 # b = i itself and its other neighbours within the support of s
@@ -257,43 +261,42 @@ def add_near_response(x, m, rho, rho0, fluid, free, solid, row, inv_mass, a_self
                     b = indices[qq] if qq < indptr[i + 1] else i
                     if not _unknown(fluid, free, solid, row, b) or not fluid[b]:
                         continue
-                    _grad(x, s, b, h, dim, g)  # grad W_sb
+                    g0, g1, g2 = _grad(x, s, b, kc, dim)  # grad W_sb
                     c = -m[s] * m[b] * rho[b] / rho0[b] / (rho[b] * rho[b])
-                    val = 0.0
-                    for a in range(dim):
-                        val += dsi[a] * inv_mass[s, a] * c * g[a]
+                    val = e0 * inv_mass[s, 0] * c * g0 + e1 * inv_mass[s, 1] * c * g1
+                    if dim == 3:
+                        val += e2 * inv_mass[s, 2] * c * g2
                     if val == 0.0:
                         continue
                     u = _column_slot(cols, start, stop - start, row[b])
                     vals[start + u] += half * val
                     near_vals[k + u] += half * val
         elif typeii:
-            dss = np.zeros(dim)
+            e0 = e1 = e2 = 0.0
             for q in range(indptr[i], indptr[i + 1]):
                 f = indices[q]
                 if fluid[f]:
-                    _grad(x, i, f, h, dim, g)
-                    for a in range(dim):
-                        dss[a] -= m[f] * g[a]
+                    g0, g1, g2 = _grad(x, i, f, kc, dim)
+                    e0 -= m[f] * g0
+                    e1 -= m[f] * g1
+                    e2 -= m[f] * g2
             for u in range(start, stop):
                 near_cols[k + u - start] = cols[u]
                 near_vals[k + u - start] = 0.0
             touched = True
             u = _column_slot(cols, start, stop - start, row[i])
-            val = 0.0
-            for a in range(dim):
-                val += dss[a] * a_self[i, a]
+            val = _dot(e0, e1, e2, a_self, i, dim)
             vals[start + u] += half * val
             near_vals[k + u] += half * val
             for q in range(indptr[i], indptr[i + 1]):
                 f = indices[q]
                 if not fluid[f] or free[f] or row[f] < 0:
                     continue
-                _grad(x, i, f, h, dim, g)
+                g0, g1, g2 = _grad(x, i, f, kc, dim)
                 c = -m[i] * m[f] * rho[f] / rho0[f] / (rho[f] * rho[f])
-                val = 0.0
-                for a in range(dim):
-                    val += dss[a] * inv_mass[i, a] * c * g[a]
+                val = e0 * inv_mass[i, 0] * c * g0 + e1 * inv_mass[i, 1] * c * g1
+                if dim == 3:
+                    val += e2 * inv_mass[i, 2] * c * g2
                 u = _column_slot(cols, start, stop - start, row[f])
                 vals[start + u] += half * val
                 near_vals[k + u] += half * val
@@ -312,17 +315,23 @@ def solid_pressure_force(x, p, m, rho, rho0, fluid, solid, indptr, indices, h, d
     acceleration :math:`\mathbf a_s(p)` of eq. (48). Shape (n, dim)."""
     n = indptr.shape[0] - 1
     out = np.zeros((n, dim))
-    g = np.empty(dim)
+    k = constants(h, dim)
     for s in range(n):
         if solid[s] <= 0.0:
             continue
         ps = p[s] / (rho[s] * rho[s])
+        a0 = a1 = a2 = 0.0
         for q in range(indptr[s], indptr[s + 1]):
             f = indices[q]
             if not fluid[f]:
                 continue
-            _grad(x, s, f, h, dim, g)
+            g0, g1, g2 = _grad(x, s, f, k, dim)
             c = -m[s] * m[f] * rho[f] / rho0[f] * (ps + p[f] / (rho[f] * rho[f]))
-            for a in range(dim):
-                out[s, a] += c * g[a]
+            a0 += c * g0
+            a1 += c * g1
+            a2 += c * g2
+        out[s, 0] = a0
+        out[s, 1] = a1
+        if dim == 3:
+            out[s, 2] = a2
     return out

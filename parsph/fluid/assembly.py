@@ -53,7 +53,8 @@ import math
 import numpy as np
 from numba import njit
 
-from parsph.kernel import fac_grad, normalisation, w
+from parsph.kernel import constants, delta, fac_grad_k, w_and_fac_grad_k, w_k
+from parsph.tensor import _eig6
 
 __all__ = ["density_and_surface", "viscous_csr", "viscous_explicit", "ghost_velocity", "ppe_csr",
            "divergence", "pressure_gradient", "pressure_gradient_corrected", "ppe_row_scale",
@@ -108,57 +109,45 @@ def density_and_surface(x, m, fluid, rho0, indptr, indices, h, dim, beta, gamma,
     (docs/iisph.md).
     """
     n = indptr.shape[0] - 1
-    w0 = normalisation(h, dim)
-    gs = np.zeros(dim)
+    k = constants(h, dim)
+    w0 = k[1]
     for i in range(n):
+        acc = m[i] * w0
         if not fluid[i]:
-            acc = m[i] * w0
             touched = False
             for q in range(indptr[i], indptr[i + 1]):
                 j = indices[q]
-                r2 = 0.0
-                for a in range(dim):
-                    e = x[i, a] - x[j, a]
-                    r2 += e * e
+                r2 = delta(x, i, j, dim)[3]
                 touched = touched or fluid[j]
-                acc += m[j] * w(math.sqrt(r2), h, dim)
+                acc += m[j] * w_k(math.sqrt(r2), k)
             level = beta if free[i] == 0 else CONTACT
             free[i] = 0 if touched and acc >= level * rho0[i] else 1
             continue
-        acc = m[i] * w0
-        gs[:] = 0.0
+        g0 = g1 = g2 = 0.0
         for q in range(indptr[i], indptr[i + 1]):
             j = indices[q]
-            r2 = 0.0
-            for a in range(dim):
-                e = x[i, a] - x[j, a]
-                r2 += e * e
-            r = math.sqrt(r2)
-            acc += m[j] * w(r, h, dim)
-            f = m[j] / rho0[j] * fac_grad(r, h, dim)
-            for a in range(dim):
-                gs[a] += f * (x[i, a] - x[j, a])
+            d0, d1, d2, r2 = delta(x, i, j, dim)
+            wij, fij = w_and_fac_grad_k(math.sqrt(r2), k)
+            acc += m[j] * wij
+            f = m[j] / rho0[j] * fij
+            g0 += f * d0
+            g1 += f * d1
+            g2 += f * d2
         rho[i] = acc
-        g2 = 0.0
-        for a in range(dim):
-            g2 += gs[a] * gs[a]
-        free[i] = 1 if (acc < beta * rho0[i] or
-                        (acc < rho0[i] and h * math.sqrt(g2) > gamma)) else 0
+        gnorm = math.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
+        free[i] = 1 if (acc < beta * rho0[i] or (acc < rho0[i] and h * gnorm > gamma)) else 0
 
 
 @njit(cache=True, inline="always")
 def fluid_weight_sum(x, fluid, indptr, indices, i, h, dim):
     """sum_f W(r_if, h) over the fluid neighbours f of a wall particle i (Adami et al. 2012:
     the normalisation of the wall extrapolations of velocity and pressure)."""
+    k = constants(h, dim)
     wsum = 0.0
     for p in range(indptr[i], indptr[i + 1]):
         j = indices[p]
         if fluid[j]:
-            r2 = 0.0
-            for a in range(dim):
-                e = x[i, a] - x[j, a]
-                r2 += e * e
-            wsum += w(math.sqrt(r2), h, dim)
+            wsum += w_k(math.sqrt(delta(x, i, j, dim)[3]), k)
     return wsum
 
 
@@ -199,15 +188,16 @@ def _close_rows(cols, vals, out_ptr, base, span, bw, dim, t, local):
     return base + dim * length
 
 
-@njit(cache=True)
-def _viscous_pair(m, rho, nu, fluid, i, j, r2, h, dim, dt, eta2, morris):
+@njit(cache=True, inline="always")
+def _viscous_pair(m, rho, nu, fluid, i, j, r2, k, dim, dt, eta2, morris):
     """Coefficient ``c`` (<= 0) of the pair (i, j) at distance squared ``r2`` in the
     viscous term of row ``i``, times dt: eq. (34) is ``c r r^T (v_i - v_j)``, Morris et
     al. (1997) ``c (v_i - v_j)``, ``r = x_i - x_j``. A boundary j takes row i's
-    viscosity; a boundary row i its fluid partner's (coupling)."""
+    viscosity; a boundary row i its fluid partner's (coupling). ``k``: the kernel's
+    :func:`parsph.kernel.constants`."""
     nui = nu[i] if fluid[i] else nu[j]
     nuj = nu[j] if fluid[j] else nui
-    f = fac_grad(math.sqrt(r2), h, dim)
+    f = fac_grad_k(math.sqrt(r2), k)
     if morris:
         return dt * m[j] * (rho[i] * nui + rho[j] * nuj) / (rho[i] * rho[j]) * f \
             * r2 / (r2 + eta2)
@@ -261,8 +251,7 @@ def viscous_csr(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, d
     n = indptr.shape[0] - 1
     rhs = np.zeros((n, dim))
     eta2 = ETA2 * h * h
-    diag = np.empty((dim, dim))
-    r = np.empty(dim)
+    kc = constants(h, dim)
     out_ptr[0] = 0
     k = 0
     order = rows_in_order(row, n, first)
@@ -280,9 +269,9 @@ def viscous_csr(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, d
         t = 0
         last = -1
         dslot = -1
-        diag[:, :] = 0.0
-        for a in range(dim):
-            diag[a, a] = 1.0
+        # the diagonal block, symmetric: D = I - sum_j c r r^T (or I - sum_j c I)
+        e00 = e11 = e22 = 1.0
+        e01 = e02 = e12 = 0.0
         if moving:
             for a in range(dim):
                 rhs[i, a] = v[i, a] + dt * g[a] if fluid[i] else v[i, a]
@@ -306,41 +295,53 @@ def viscous_csr(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, d
                 if dslot < 0 and rj >= ri:
                     dslot, t, last = _slot(out_cols, out_vals, base, span, bw, dim, t, last, ri)
                 s, t, last = _slot(out_cols, out_vals, base, span, bw, dim, t, last, rj)
+                d0, d1, d2, r2 = delta(x, i, j, dim)
                 if ghost:
-                    r2 = 0.0
-                    for a in range(dim):
-                        e = x[i, a] - x[j, a]
-                        r2 += e * e
-                    wij = w(math.sqrt(r2), h, dim) / wsum
+                    wij = w_k(math.sqrt(r2), kc) / wsum
                     for a in range(dim):
                         out_vals[base + a * span + s] += wij
                     continue
-                r2 = 0.0
-                for a in range(dim):
-                    r[a] = x[i, a] - x[j, a]
-                    r2 += r[a] * r[a]
-                c = _viscous_pair(m, rho, nu, fluid, i, j, r2, h, dim, dt, eta2, morris) \
+                c = _viscous_pair(m, rho, nu, fluid, i, j, r2, kc, dim, dt, eta2, morris) \
                     * (1.0 if fluid[i] else solid[i])
                 if morris:
+                    e00 -= c
                     for a in range(dim):
-                        diag[a, a] -= c
                         out_vals[base + a * span + s] += c
                     continue
-                for a in range(dim):
-                    for b in range(dim):
-                        e = c * r[a] * r[b]
-                        diag[a, b] -= e
-                        out_vals[base + a * span + s * dim + b] += e
+                c00, c01, c02 = c * d0 * d0, c * d0 * d1, c * d0 * d2
+                c11, c12, c22 = c * d1 * d1, c * d1 * d2, c * d2 * d2
+                e00 -= c00
+                e01 -= c01
+                e02 -= c02
+                e11 -= c11
+                e12 -= c12
+                e22 -= c22
+                _add_block(out_vals, base + s * dim, span, dim, c00, c01, c02, c11, c12, c22)
         if dslot < 0:
             dslot, t, last = _slot(out_cols, out_vals, base, span, bw, dim, t, last, ri)
-        for a in range(dim):
-            if bw == dim:
-                for b in range(dim):
-                    out_vals[base + a * span + dslot * dim + b] += diag[a, b]
-            else:
-                out_vals[base + a * span + dslot] += diag[a, a]
+        if bw == dim:
+            _add_block(out_vals, base + dslot * dim, span, dim, e00, e01, e02, e11, e12, e22)
+        else:  # a diagonal block: (1 - sum c) I (Morris), or the identity
+            for a in range(dim):
+                out_vals[base + a * span + dslot] += e00
         k = _close_rows(out_cols, out_vals, out_ptr, base, span, bw, dim, t, ri - first)
     return k, rhs
+
+
+@njit(cache=True, inline="always")
+def _add_block(vals, at, span, dim, c00, c01, c02, c11, c12, c22):
+    """Add the symmetric block ``c`` to the ``dim`` rows written side by side: row ``a``
+    from ``at + a span``, columns in order."""
+    vals[at] += c00
+    vals[at + 1] += c01
+    vals[at + span] += c01
+    vals[at + span + 1] += c11
+    if dim == 3:
+        vals[at + 2] += c02
+        vals[at + span + 2] += c12
+        vals[at + 2 * span] += c02
+        vals[at + 2 * span + 1] += c12
+        vals[at + 2 * span + 2] += c22
 
 
 @njit(cache=True)
@@ -350,25 +351,27 @@ def ghost_velocity(x, v, fluid, slip, indptr, indices, h, dim, out):
     the wall rows of :func:`viscous_csr` solved on their own. Wall rows without fluid
     neighbours get ``v_w``; fluid and free-slip rows are left as they are."""
     n = indptr.shape[0] - 1
-    acc = np.empty(dim)
+    k = constants(h, dim)
     for i in range(n):
         if fluid[i] or slip[i]:
             continue
         wsum = 0.0  # one pass: sum_f W_wf and sum_f W_wf v_f together
-        acc[:] = 0.0
+        a0 = a1 = a2 = 0.0
         for p in range(indptr[i], indptr[i + 1]):
             j = indices[p]
             if fluid[j]:
-                r2 = 0.0
-                for a in range(dim):
-                    e = x[i, a] - x[j, a]
-                    r2 += e * e
-                wij = w(math.sqrt(r2), h, dim)
+                wij = w_k(math.sqrt(delta(x, i, j, dim)[3]), k)
                 wsum += wij
-                for a in range(dim):
-                    acc[a] += wij * v[j, a]
-        for a in range(dim):
-            out[i, a] = 2.0 * v[i, a] - acc[a] / wsum if wsum > 0.0 else v[i, a]
+                u0, u1, u2 = _vec(v, j, dim)
+                a0 += wij * u0
+                a1 += wij * u1
+                a2 += wij * u2
+        if wsum > 0.0:
+            _store(out, i, dim, 2.0 * v[i, 0] - a0 / wsum, 2.0 * v[i, 1] - a1 / wsum,
+                   2.0 * v[i, 2] - a2 / wsum if dim == 3 else 0.0)
+        else:
+            for a in range(dim):
+                out[i, a] = v[i, a]
 
 
 @njit(cache=True)
@@ -388,29 +391,51 @@ def viscous_explicit(x, v, v_ghost, m, rho, nu, fluid, slip, indptr, indices, h,
     n = indptr.shape[0] - 1
     out = np.empty((n, dim))
     eta2 = ETA2 * h * h
+    k = constants(h, dim)
     for i in range(n):
-        for a in range(dim):
-            out[i, a] = v[i, a] + dt * g[a] if fluid[i] else v[i, a]
         if not fluid[i]:
+            for a in range(dim):
+                out[i, a] = v[i, a]
             continue
+        vi0, vi1, vi2 = _vec(v, i, dim)
+        o0 = vi0 + dt * g[0]
+        o1 = vi1 + dt * g[1]
+        o2 = vi2 + dt * g[2] if dim == 3 else 0.0
         for p in range(indptr[i], indptr[i + 1]):
             j = indices[p]
             fj = fluid[j]
             if not fj and slip[j]:
                 continue
-            r2 = 0.0
-            dr = 0.0
-            for a in range(dim):
-                e = x[i, a] - x[j, a]
-                r2 += e * e
-                dr += (v[i, a] - (v[j, a] if fj else v_ghost[j, a])) * e
-            c = _viscous_pair(m, rho, nu, fluid, i, j, r2, h, dim, dt, eta2, morris)
-            for a in range(dim):
-                if morris:
-                    out[i, a] += c * (v[i, a] - (v[j, a] if fj else v_ghost[j, a]))
-                else:
-                    out[i, a] += c * (x[i, a] - x[j, a]) * dr
+            d0, d1, d2, r2 = delta(x, i, j, dim)
+            u0, u1, u2 = _vec(v if fj else v_ghost, j, dim)
+            e0, e1, e2 = vi0 - u0, vi1 - u1, vi2 - u2
+            c = _viscous_pair(m, rho, nu, fluid, i, j, r2, k, dim, dt, eta2, morris)
+            if morris:
+                o0 += c * e0
+                o1 += c * e1
+                o2 += c * e2
+            else:
+                dr = e0 * d0 + e1 * d1 + e2 * d2
+                o0 += c * d0 * dr
+                o1 += c * d1 * dr
+                o2 += c * d2 * dr
+        _store(out, i, dim, o0, o1, o2)
     return out
+
+
+@njit(cache=True, inline="always")
+def _vec(v, i, dim):
+    """Row ``i`` of an (N, dim) array as three scalars (the third 0 in 2D)."""
+    return v[i, 0], v[i, 1], v[i, 2] if dim == 3 else 0.0
+
+
+@njit(cache=True, inline="always")
+def _store(out, i, dim, a0, a1, a2):
+    """Write three scalars to row ``i`` of an (N, dim) array (the third only in 3D)."""
+    out[i, 0] = a0
+    out[i, 1] = a1
+    if dim == 3:
+        out[i, 2] = a2
 
 
 @njit(cache=True)
@@ -456,8 +481,9 @@ def ppe_csr(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt, 
     """
     n = indptr.shape[0] - 1
     rhs = np.zeros(n)
-    ev = np.zeros(dim)
-    L = np.zeros((dim, dim))
+    kc = constants(h, dim)
+    ok, e0, e1, e2 = False, 0.0, 0.0, 0.0
+    L = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     out_ptr[0] = 0
     k = 0
     order = rows_in_order(row, n, first)
@@ -479,28 +505,27 @@ def ppe_csr(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt, 
             s = rho[i] * d * d / (2.0 * rho0[i])
             diag = 0.0
             if corrected and interior:
-                use_corr = _truncation_vector(x, m, rho, indptr, indices, i, h, dim, ev, L)
+                ok, e0, e1, e2, L = _truncation(x, m, rho, indptr, indices, i, kc, dim)
+                use_corr = ok
+            v0, v1, v2 = _vec(vs, i, dim)
             for p in range(indptr[i], indptr[i + 1]):
                 j = indices[p]
                 if boundary and not fluid[j]:
                     continue
                 rj = row[j]
                 if dslot < 0 and rj >= ri:
-                    dslot, t, last = _slot(out_cols, out_vals, base, 0, 1, 1, t, last, ri)
-                slot, t, last = _slot(out_cols, out_vals, base, 0, 1, 1, t, last, rj)
-                r2 = 0.0
-                dvr = 0.0
-                for a in range(dim):
-                    e = x[i, a] - x[j, a]
-                    r2 += e * e
-                    dvr += (vs[j, a] - vs[i, a]) * e
-                f = fac_grad(math.sqrt(r2), h, dim)
+                    dslot, t, last = _scalar_slot(out_cols, out_vals, base, t, last, ri)
+                slot, t, last = _scalar_slot(out_cols, out_vals, base, t, last, rj)
+                d0, d1, d2, r2 = delta(x, i, j, dim)
+                u0, u1, u2 = _vec(vs, j, dim)
+                dvr = (u0 - v0) * d0 + (u1 - v1) * d1 + (u2 - v2) * d2
+                f = fac_grad_k(math.sqrt(r2), kc)
                 div += m[j] * dvr * f
                 # >= 0: the pair's response; 1 where one end is a boundary (see above)
                 c = -s * (2.0 if fluid[i] and fluid[j] else 1.0) / rho[i] * m[j] * f
                 plain += c
                 if use_corr:
-                    c = _corrected(c, x, m, rho, i, j, f, s, ev, L, dim)
+                    c = _corrected(c, m, rho, j, f, s, e0, e1, e2, L, d0, d1, d2)
                 diag += c
                 out_vals[base + slot] -= c
             if use_corr and diag < 0.5 * plain:
@@ -511,14 +536,12 @@ def ppe_csr(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt, 
                 diag = plain
                 for p in range(indptr[i], indptr[i + 1]):
                     j = indices[p]
-                    r2 = 0.0
-                    for a in range(dim):
-                        e = x[i, a] - x[j, a]
-                        r2 += e * e
-                    f = fac_grad(math.sqrt(r2), h, dim)
+                    d0, d1, d2, r2 = delta(x, i, j, dim)
+                    f = fac_grad_k(math.sqrt(r2), kc)
                     c = -s * (2.0 if fluid[j] else 1.0) / rho[i] * m[j] * f
                     u = _column_slot(out_cols, base, t, row[j])
-                    out_vals[base + u] += _corrected(c, x, m, rho, i, j, f, s, ev, L, dim) - c
+                    out_vals[base + u] += _corrected(c, m, rho, j, f, s, e0, e1, e2, L,
+                                                     d0, d1, d2) - c
             if interior:
                 div /= rho[i]
                 # density-error term of eq. (32) for compression only: under-density near
@@ -530,7 +553,7 @@ def ppe_csr(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt, 
             else:  # no penetration: no density term (a boundary's own volume)
                 rhs[i] = -s * rho0[i] * div / (rho[i] * dt)
         if dslot < 0:
-            dslot, t, last = _slot(out_cols, out_vals, base, 0, 1, 1, t, last, ri)
+            dslot, t, last = _scalar_slot(out_cols, out_vals, base, t, last, ri)
         out_vals[base + dslot] += diag
         k = base + t
         out_ptr[ri - first + 1] = k
@@ -538,15 +561,24 @@ def ppe_csr(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt, 
 
 
 @njit(cache=True, inline="always")
-def _corrected(c, x, m, rho, i, j, f, s, ev, L, dim):
+def _scalar_slot(cols, vals, base, t, last, col):
+    """:func:`_slot` of a scalar system (one row, block size 1)."""
+    if t > 0 and last == col:
+        return t - 1, t, last
+    cols[base + t] = col
+    vals[base + t] = 0.0
+    return t, t + 1, col
+
+
+@njit(cache=True, inline="always")
+def _corrected(c, m, rho, j, f, s, e0, e1, e2, L, d0, d1, d2):
     """The pair coefficient ``c`` of a fluid row with the first-order correction of the
-    ``corrected`` Laplacian, + 2 s e_i . L_i V_j grad W_ij, kept >= 0 (an M-matrix row)."""
-    eb = 0.0
-    for a in range(dim):
-        la = 0.0
-        for b in range(dim):
-            la += L[a, b] * (x[i, b] - x[j, b])
-        eb += ev[a] * la
+    ``corrected`` Laplacian, + 2 s e_i . L_i V_j grad W_ij, kept >= 0 (an M-matrix row).
+    ``(d0, d1, d2) = x_i - x_j``; ``L`` the six entries of the symmetric L_i
+    (:func:`_truncation`)."""
+    l00, l01, l02, l11, l12, l22 = L
+    eb = e0 * (l00 * d0 + l01 * d1 + l02 * d2) + e1 * (l01 * d0 + l11 * d1 + l12 * d2) \
+        + e2 * (l02 * d0 + l12 * d1 + l22 * d2)
     return max(c - 2.0 * s * m[j] / rho[j] * f * eb, 0.0)
 
 
@@ -563,66 +595,54 @@ def _column_slot(cols, base, t, col):
     return lo
 
 
-@njit(cache=True)
-def _truncation_vector(x, m, rho, indptr, indices, i, h, dim, ev, L):
-    """``ev`` = sum_j (m_j / rho_i) grad W_ij and ``L`` = the inverse of
-    sum_j V_j grad W_ij (x) (x_j - x_i) of row ``i``; False where that matrix is near
-    singular (no correction then)."""
-    ev[:] = 0.0
-    M = L  # accumulated in place, inverted below
-    M[:, :] = 0.0
+@njit(cache=True, inline="always")
+def _truncation(x, m, rho, indptr, indices, i, k, dim):
+    """``(ok, e0, e1, e2, L)`` of row ``i``: ``e`` = sum_j (m_j / rho_i) grad W_ij and ``L``
+    the six entries ``(l00, l01, l02, l11, l12, l22)`` of the inverse of the symmetric
+    moment matrix sum_j V_j grad W_ij (x) (x_j - x_i); ``ok`` False where that matrix is
+    near singular (no correction then)."""
+    e0 = e1 = e2 = 0.0
+    m00 = m01 = m02 = m11 = m12 = m22 = 0.0
     for p in range(indptr[i], indptr[i + 1]):
         j = indices[p]
-        r2 = 0.0
-        for a in range(dim):
-            e = x[i, a] - x[j, a]
-            r2 += e * e
-        f = fac_grad(math.sqrt(r2), h, dim)
-        for a in range(dim):
-            ga = f * (x[i, a] - x[j, a])
-            ev[a] += m[j] / rho[i] * ga
-            for b in range(dim):
-                M[a, b] += m[j] / rho[j] * ga * (x[j, b] - x[i, b])
-    return _invert_small(M, dim)
+        d0, d1, d2, r2 = delta(x, i, j, dim)
+        f = fac_grad_k(math.sqrt(r2), k)
+        a = m[j] / rho[i] * f
+        e0 += a * d0
+        e1 += a * d1
+        e2 += a * d2
+        b = -m[j] / rho[j] * f
+        m00 += b * d0 * d0
+        m01 += b * d0 * d1
+        m02 += b * d0 * d2
+        m11 += b * d1 * d1
+        m12 += b * d1 * d2
+        m22 += b * d2 * d2
+    ok, L = _invert_sym(m00, m01, m02, m11, m12, m22, dim)
+    return ok, e0, e1, e2, L
 
 
-@njit(cache=True)
-def _invert_small(M, dim):
-    """Invert the 2x2 or 3x3 matrix ``M`` in place (no LAPACK call, no allocation);
-    False (``M`` unchanged) where it is near singular: trace <= 0 or
-    det <= 1e-3 (trace / dim)^dim."""
-    tr = 0.0
-    for a in range(dim):
-        tr += M[a, a]
-    if tr <= 0.0:
-        return False
+@njit(cache=True, inline="always")
+def _invert_sym(m00, m01, m02, m11, m12, m22, dim):
+    """``(ok, (l00, l01, l02, l11, l12, l22))``: the inverse of the symmetric 2x2 (``dim`` 2,
+    the ``*2`` entries ignored) or 3x3 matrix; ``ok`` False (zeros) where it is near
+    singular: trace <= 0 or det <= 1e-3 (trace / dim)^dim."""
+    zero = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     if dim == 2:
-        det = M[0, 0] * M[1, 1] - M[0, 1] * M[1, 0]
-        if det <= 1e-3 * (tr / 2) ** 2:
-            return False
-        a00, a01, a10, a11 = M[0, 0], M[0, 1], M[1, 0], M[1, 1]
-        M[0, 0], M[0, 1], M[1, 0], M[1, 1] = a11 / det, -a01 / det, -a10 / det, a00 / det
-        return True
-    c00 = M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1]
-    c01 = M[1, 2] * M[2, 0] - M[1, 0] * M[2, 2]
-    c02 = M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0]
-    det = M[0, 0] * c00 + M[0, 1] * c01 + M[0, 2] * c02
-    if det <= 1e-3 * (tr / 3) ** 3:
-        return False
-    inv = np.empty((3, 3))
-    inv[0, 0] = c00
-    inv[1, 0] = c01
-    inv[2, 0] = c02
-    inv[0, 1] = M[0, 2] * M[2, 1] - M[0, 1] * M[2, 2]
-    inv[1, 1] = M[0, 0] * M[2, 2] - M[0, 2] * M[2, 0]
-    inv[2, 1] = M[0, 1] * M[2, 0] - M[0, 0] * M[2, 1]
-    inv[0, 2] = M[0, 1] * M[1, 2] - M[0, 2] * M[1, 1]
-    inv[1, 2] = M[0, 2] * M[1, 0] - M[0, 0] * M[1, 2]
-    inv[2, 2] = M[0, 0] * M[1, 1] - M[0, 1] * M[1, 0]
-    for a in range(3):
-        for b in range(3):
-            M[a, b] = inv[a, b] / det
-    return True
+        tr = m00 + m11
+        det = m00 * m11 - m01 * m01
+        if tr <= 0.0 or det <= 1e-3 * (tr / 2) ** 2:
+            return False, zero
+        return True, (m11 / det, -m01 / det, 0.0, m00 / det, 0.0, 0.0)
+    tr = m00 + m11 + m22
+    c00 = m11 * m22 - m12 * m12
+    c01 = m12 * m02 - m01 * m22
+    c02 = m01 * m12 - m11 * m02
+    det = m00 * c00 + m01 * c01 + m02 * c02
+    if tr <= 0.0 or det <= 1e-3 * (tr / 3) ** 3:
+        return False, zero
+    return True, (c00 / det, c01 / det, c02 / det, (m00 * m22 - m02 * m02) / det,
+                  (m02 * m01 - m00 * m12) / det, (m00 * m11 - m01 * m01) / det)
 
 
 @njit(cache=True)
@@ -630,19 +650,18 @@ def divergence(x, vs, m, rho, fluid, indptr, indices, h, dim):
     """Velocity divergence (36) of the owned fluid rows (1/s); 0 elsewhere."""
     n = indptr.shape[0] - 1
     out = np.zeros(n)
+    k = constants(h, dim)
     for i in range(n):
         if not fluid[i]:
             continue
+        v0, v1, v2 = _vec(vs, i, dim)
         acc = 0.0
         for p in range(indptr[i], indptr[i + 1]):
             j = indices[p]
-            r2 = 0.0
-            dvr = 0.0
-            for a in range(dim):
-                e = x[i, a] - x[j, a]
-                r2 += e * e
-                dvr += (vs[j, a] - vs[i, a]) * e
-            acc += m[j] * dvr * fac_grad(math.sqrt(r2), h, dim)
+            d0, d1, d2, r2 = delta(x, i, j, dim)
+            u0, u1, u2 = _vec(vs, j, dim)
+            dvr = (u0 - v0) * d0 + (u1 - v1) * d1 + (u2 - v2) * d2
+            acc += m[j] * dvr * fac_grad_k(math.sqrt(r2), k)
         out[i] = acc / rho[i]
     return out
 
@@ -656,19 +675,20 @@ def pressure_gradient(x, p, m, rho, fluid, indptr, indices, h, dim):
     """
     n = indptr.shape[0] - 1
     out = np.zeros((n, dim))
+    k = constants(h, dim)
     for i in range(n):
         if not fluid[i]:
             continue
         pi = p[i] / (rho[i] * rho[i])
+        g0 = g1 = g2 = 0.0
         for q in range(indptr[i], indptr[i + 1]):
             j = indices[q]
-            r2 = 0.0
-            for a in range(dim):
-                e = x[i, a] - x[j, a]
-                r2 += e * e
-            c = rho[i] * m[j] * (pi + p[j] / (rho[j] * rho[j])) * fac_grad(math.sqrt(r2), h, dim)
-            for a in range(dim):
-                out[i, a] += c * (x[i, a] - x[j, a])
+            d0, d1, d2, r2 = delta(x, i, j, dim)
+            c = rho[i] * m[j] * (pi + p[j] / (rho[j] * rho[j])) * fac_grad_k(math.sqrt(r2), k)
+            g0 += c * d0
+            g1 += c * d1
+            g2 += c * d2
+        _store(out, i, dim, g0, g1, g2)
     return out
 
 
@@ -707,36 +727,63 @@ def pressure_gradient_corrected(x, p, m, rho, fluid, indptr, indices, h, dim, we
     """
     n = indptr.shape[0] - 1
     out = np.zeros((n, dim))
-    M = np.zeros((dim, dim))
-    s = np.zeros(dim)
     floor = 0.5 ** dim
+    k = constants(h, dim)
     for i in range(n):
         if not fluid[i]:
             continue
-        M[:, :] = 0.0
-        s[:] = 0.0
+        s0 = s1 = s2 = 0.0
+        m00 = m01 = m02 = m11 = m12 = m22 = 0.0
         for q in range(indptr[i], indptr[i + 1]):
             j = indices[q]
             if wet is not None and not wet[j]:
                 continue
-            r2 = 0.0
-            for a in range(dim):
-                e = x[i, a] - x[j, a]
-                r2 += e * e
-            vf = m[j] / rho[j] * fac_grad(math.sqrt(r2), h, dim)
-            for a in range(dim):
-                ga = vf * (x[i, a] - x[j, a])
-                s[a] += (p[j] - p[i]) * ga
-                for b in range(dim):
-                    M[a, b] += ga * (x[j, b] - x[i, b])
-        lam, Q = np.linalg.eigh(M)
-        for a in range(dim):
-            acc = 0.0
-            for k in range(dim):
-                c = 0.0
-                for b in range(dim):
-                    c += Q[b, k] * s[b]
-                acc += Q[a, k] * c / max(lam[k], floor)
-            out[i, a] = acc
+            d0, d1, d2, r2 = delta(x, i, j, dim)
+            vf = m[j] / rho[j] * fac_grad_k(math.sqrt(r2), k)
+            dp = p[j] - p[i]
+            s0 += dp * vf * d0
+            s1 += dp * vf * d1
+            s2 += dp * vf * d2
+            m00 -= vf * d0 * d0
+            m01 -= vf * d0 * d1
+            m02 -= vf * d0 * d2
+            m11 -= vf * d1 * d1
+            m12 -= vf * d1 * d2
+            m22 -= vf * d2 * d2
+        g0, g1, g2 = _solve_floored(m00, m01, m02, m11, m12, m22, s0, s1, s2, floor, dim)
+        _store(out, i, dim, g0, g1, g2)
     return out
+
+
+@njit(cache=True, inline="always")
+def _solve_floored(m00, m01, m02, m11, m12, m22, s0, s1, s2, floor, dim):
+    """``M^-1 s`` of a symmetric 2x2 or 3x3 ``M`` with its eigenvalues taken as at least
+    ``floor`` (closed-form eigen-decomposition, no LAPACK call, no allocation)."""
+    if dim == 2:
+        l0, l1, c, sn = _eig2(m00, m01, m11)
+        t0 = (c * s0 + sn * s1) / max(l0, floor)
+        t1 = (-sn * s0 + c * s1) / max(l1, floor)
+        return c * t0 - sn * t1, sn * t0 + c * t1, 0.0
+    e = _eig6(m00, m11, m22, m01, m02, m12)  # (l0, l1, l2, v0, v1, v2), ascending
+    out0 = out1 = out2 = 0.0
+    for q in range(3):
+        x0, x1, x2 = e[3 + 3 * q], e[4 + 3 * q], e[5 + 3 * q]
+        t = (x0 * s0 + x1 * s1 + x2 * s2) / max(e[q], floor)
+        out0 += x0 * t
+        out1 += x1 * t
+        out2 += x2 * t
+    return out0, out1, out2
+
+
+@njit(cache=True, inline="always")
+def _eig2(a, b, c):
+    """Eigenvalues ``(l0, l1)`` of the symmetric ``[[a, b], [b, c]]`` and the rotation
+    ``(cos, sin)`` whose columns ``(cos, sin)``, ``(-sin, cos)`` are their eigenvectors."""
+    if b == 0.0:
+        return a, c, 1.0, 0.0
+    theta = 0.5 * math.atan2(2.0 * b, a - c)
+    cs, sn = math.cos(theta), math.sin(theta)
+    l0 = a * cs * cs + 2.0 * b * cs * sn + c * sn * sn
+    l1 = a * sn * sn - 2.0 * b * cs * sn + c * cs * cs
+    return l0, l1, cs, sn
 

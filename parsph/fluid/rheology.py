@@ -32,7 +32,7 @@ import math
 import numpy as np
 from numba import njit
 
-from parsph.kernel import fac_grad
+from parsph.kernel import constants, delta, fac_grad_k
 
 __all__ = ["strain_rate", "viscosity"]
 
@@ -40,6 +40,7 @@ __all__ = ["strain_rate", "viscosity"]
 @njit(cache=True)
 def _strain_rate(x, v, m, rho, fluid, slip, indptr, indices, h, dim, out):
     n = indptr.shape[0] - 1
+    k = constants(h, dim)
     for i in range(n):
         if not fluid[i]:
             out[i] = 0.0
@@ -49,14 +50,9 @@ def _strain_rate(x, v, m, rho, fluid, slip, indptr, indices, h, dim, out):
             j = indices[p]
             if not fluid[j] and slip[j]:
                 continue
-            r2 = 0.0
-            dv2 = 0.0
-            for a in range(dim):
-                d = x[i, a] - x[j, a]
-                r2 += d * d
-                e = v[i, a] - v[j, a]
-                dv2 += e * e
-            f = fac_grad(math.sqrt(r2), h, dim)  # r.grad W / r^2
+            r2 = delta(x, i, j, dim)[3]
+            dv2 = delta(v, i, j, dim)[3]
+            f = fac_grad_k(math.sqrt(r2), k)  # r.grad W / r^2
             acc -= 0.5 * m[j] * (rho[i] + rho[j]) / (rho[i] * rho[j]) * f * dv2
         out[i] = math.sqrt(max(acc, 0.0))
     return out

@@ -29,7 +29,7 @@ from numba import njit
 
 from parsph.kernel import fac_grad
 from parsph.kernel import w as _w
-from parsph.solid.tensor import eigh3
+from parsph.tensor import eigh3
 
 
 @njit(cache=True)

@@ -1,4 +1,5 @@
-r"""3x3 tensor helpers for the constitutive models (numba, one material point).
+r"""3x3 tensor helpers (numba, one material point): the constitutive models, the fluid's
+corrected gradient.
 
 The finite-strain models of the paper (section 3.2) need, per particle and step, the
 tensor logarithm of the trial left Cauchy-Green tensor, eq. (24), and the tensor
