@@ -16,11 +16,12 @@ import numpy as np
 
 
 class ProductOperator:
-    """Context of a PETSc Python matrix ``y = A x + L^T (R x) - N x`` (see the module
-    docstring). Owns ``L``, ``R``, ``N`` and its work vectors; :meth:`free` frees them
-    (collective)."""
+    """Context of a PETSc Python matrix ``y = A x + S L^T (R x) - N x`` (see the module
+    docstring), ``S`` an optional diagonal scaling of the rows (``row_scale``: the
+    caller scaled the rows of ``A`` and ``N`` by it). Owns ``L``, ``R``, ``N`` and its
+    work vectors; :meth:`free` frees them (collective)."""
 
-    def __init__(self, PETSc, comm, A, n_rows, ptr, cols, left, right, near):
+    def __init__(self, PETSc, comm, A, n_rows, ptr, cols, left, right, near, row_scale=None):
         self.A = A
         int_type = PETSc.IntType
         ptr = np.ascontiguousarray(ptr, dtype=int_type)
@@ -39,22 +40,32 @@ class ProductOperator:
         self.N = PETSc.Mat().createAIJ(A.getSizes(), csr=self._near, comm=comm)
         self._u = self.R.createVecLeft()
         self._t = A.createVecLeft()
+        self._s = None
+        if row_scale is not None:
+            self._s = A.createVecLeft()
+            self._s.setArray(np.asarray(row_scale, dtype=np.float64))
         self.mat = PETSc.Mat().createPython(A.getSizes(), context=self, comm=comm)
         self.mat.setUp()
 
     def mult(self, mat, x, y) -> None:
-        """``y = A x - N x + L^T (R x)``."""
+        """``y = A x - N x + S L^T (R x)``."""
         self.A.mult(x, y)
         self.N.mult(x, self._t)
         y.axpy(-1.0, self._t)
         self.R.mult(x, self._u)
-        self.L.multTransposeAdd(self._u, y, y)
+        if self._s is None:
+            self.L.multTransposeAdd(self._u, y, y)
+        else:
+            self.L.multTranspose(self._u, self._t)
+            self._t.pointwiseMult(self._t, self._s)
+            y.axpy(1.0, self._t)
 
     def free(self) -> None:
         """Collective: destroy the PETSc objects (``destroy`` is the name petsc4py calls on
         a Python matrix's context)."""
         mat, self.mat = self.mat, None
-        for obj in (self.L, self.R, self.N, self._u, self._t):
-            obj.destroy()
+        for obj in (self.L, self.R, self.N, self._u, self._t, self._s):
+            if obj is not None:
+                obj.destroy()
         self.A = None
         mat.destroy()

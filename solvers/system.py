@@ -623,9 +623,9 @@ class LinearSystem:
             self._pc_age = 0
         self._ksp.getPC().setReusePreconditioner(keep)
 
-    def set_product(self, ptr, cols, left, right, near) -> None:
+    def set_product(self, ptr, cols, left, right, near, row_scale=None) -> None:
         """Collective: the operator of the next solve is the assembled matrix plus
-        ``left^T right`` minus ``near``; the preconditioner stays built on the matrix.
+        ``S left^T right`` minus ``near``; the preconditioner stays built on the matrix.
 
         Parameters
         ----------
@@ -639,6 +639,10 @@ class LinearSystem:
             (``n_local + 1`` row pointers, global columns sorted in each row), the part
             of ``left^T right`` the caller already added to the assembled matrix (so the
             operator is the matrix without it, plus the whole product).
+        row_scale : numpy.ndarray of float64, optional
+            ``S``, one factor per owned row (default 1): the caller scaled the rows of
+            the assembled matrix and of ``near`` by it (e.g.
+            :func:`solvers.csr.unit_diagonal`), and the product's rows get it too.
 
         Notes
         -----
@@ -653,7 +657,7 @@ class LinearSystem:
         if self.comm.allreduce(n_rows) == 0:
             return
         self._product = ProductOperator(self._PETSc, self.comm, self._mat, n_rows, ptr, cols,
-                                        left, right, near)
+                                        left, right, near, row_scale)
         self._ksp.setOperators(self._product.mat, self._mat)
 
     def _drop_product(self) -> None:

@@ -40,7 +40,7 @@ from parsph.fluid import assembly, rheology
 from parsph.contact import wall_contact
 from parsph.fluid.walls import wall_slip
 from parsph.materials import PHASE_FLUID, PHASE_WALL
-from solvers.csr import sort_neighbours_by_row
+from solvers.csr import scale_rows, sort_neighbours_by_row, unit_diagonal
 
 #: BoomerAMG defaults of the PPE beyond the smoother every system gets
 #: (``solvers.system._HYPRE_DEFAULTS``); ``-ppe_pc_hypre_boomeramg_agg_nl 0`` undoes it.
@@ -420,12 +420,18 @@ class IISPH:
                 indices, h, dim, d, ppe.offset, ptr, cols, vals, *near)
             blocks = pressure.response_blocks(x, m, rho, rho0, fluid, free, solid, row,
                                               p["inv_mass"], indptr, indices, h, dim, d)
+        # every row scaled to a unit diagonal: a boundary row barely in contact has a
+        # diagonal of 1e-9 one step and 1e-7 the next, and a lagged set-up then took 60
+        # iterations where a fresh one took 9 (with the scaling: 11; docs/solvers.md)
+        scale = unit_diagonal(ptr, cols[:nnz], vals[:nnz], ppe.offset)
         ppe.assemble_csr(ptr, cols[:nnz], vals[:nnz],
                          same_unknowns=self._same_ppe_rows(p["id"][:n][order]))
         if coupled:
-            ppe.set_product(*blocks, near=(near[0], near[1][:n_near], near[2][:n_near]))
+            scale_rows(near[0], near[2][:n_near], scale)
+            ppe.set_product(*blocks, near=(near[0], near[1][:n_near], near[2][:n_near]),
+                            row_scale=scale)
         t_asm += time.perf_counter() - t0
-        pres, info_p = ppe.solve(rhs[order], x0=p["p_ppe"][:n][order])
+        pres, info_p = ppe.solve(rhs[order] * scale, x0=p["p_ppe"][:n][order])
         p["p_ppe"][:n][order] = pres
         if self.num.clamp_negative_pressure:  # MPS practice (Koshizuka & Oka 1996)
             # every row: a boundary's negative pressure is suction, which would hold the

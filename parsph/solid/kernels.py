@@ -27,7 +27,7 @@ import math
 import numpy as np
 from numba import njit
 
-from parsph.kernel import fac_grad
+from parsph.kernel import constants, fac_grad
 from parsph.kernel import w as _w
 from parsph.tensor import eigh3
 
@@ -187,23 +187,36 @@ def laplacian(v, x, m, rho, fp, n, indptr, indices, h, dim, out):
     R_ij) a rigid rotation gives v_ij . r_ij = 0: JST does not damp rotation. Applied
     to its own output it gives :math:`\nabla^4\mathbf v` of eq. (12).
     """
+    k = constants(h, dim)
     for i in range(n):
         o0 = 0.0
         o1 = 0.0
         o2 = 0.0
+        x0, x1, x2 = x[i, 0], x[i, 1], x[i, 2]
+        v0, v1, v2 = v[i, 0], v[i, 1], v[i, 2]
+        rho_i = rho[i]
+        four_i = 4.0 / rho_i
         for p in range(indptr[i], indptr[i + 1]):
             if fp[p] == 0.0:
                 continue
             j = indices[p]
-            r0 = x[i, 0] - x[j, 0]
-            r1 = x[i, 1] - x[j, 1]
-            r2 = x[i, 2] - x[j, 2]
+            r0 = x0 - x[j, 0]
+            r1 = x1 - x[j, 1]
+            r2 = x2 - x[j, 2]
             rr = r0 * r0 + r1 * r1 + r2 * r2
-            f = fac_grad(math.sqrt(rr), h, dim)
-            if f == 0.0:
+            # F(r) / r^2 with one division (the pair's current distance may pass 2h)
+            q = math.sqrt(rr) * k[0]
+            if q < 1.0:
+                f = k[2] * (-3.0 + 2.25 * q) / rr
+            elif q < 2.0:
+                t = 2.0 - q
+                f = k[2] * (-0.75 * t * t) / (q * rr)
+            else:
                 continue
-            vr = (v[i, 0] - v[j, 0]) * r0 + (v[i, 1] - v[j, 1]) * r1 + (v[i, 2] - v[j, 2]) * r2
-            c = m[j] * 8.0 / (rho[i] + rho[j]) * vr / rr * f
+            vr = (v0 - v[j, 0]) * r0 + (v1 - v[j, 1]) * r1 + (v2 - v[j, 2]) * r2
+            # 8 / (rho_i + rho_j) without a division where the densities are equal
+            two = four_i if rho[j] == rho_i else 8.0 / (rho_i + rho[j])
+            c = m[j] * two * vr * f
             o0 += c * r0
             o1 += c * r1
             o2 += c * r2
@@ -299,3 +312,39 @@ def hourglass(x, X, F, m, vol, modulus, fp, n, indptr, indices, h, dim, alpha, o
         out[i, 0] += o0 / m[i]
         out[i, 1] += o1 / m[i]
         out[i, 2] += o2 / m[i]
+
+
+@njit(cache=True)
+def kick(v, acc, lap, lap4, g, extra, sel, n, dt, cpd, eps2, c4, dim):
+    r"""Eq. (7) for the solid rows ``i < n``: :math:`\mathbf v_i \mathrel{+}= \Delta t\,
+    (\mathbf a_i + c_p d\,(\varepsilon^{(2)}\nabla^2\mathbf v_i - d^2\varepsilon^{(4)}
+    \nabla^4\mathbf v_i) + \mathbf g + \mathbf a^{extra}_i)` in one pass, with ``cpd`` =
+    :math:`c_p d` and ``c4`` = :math:`d^2\varepsilon^{(4)}`; ``lap`` (``lap4``, ``extra``)
+    are read only if they have rows (pass ``np.empty((0, 3))`` for none). The operations
+    are those of the numpy expression they replace, in its order (bit for bit)."""
+    jst = lap.shape[0] > 0
+    fourth = lap4.shape[0] > 0
+    more = extra.shape[0] > 0
+    for i in range(n):
+        if not sel[i]:
+            continue
+        for a in range(dim):
+            s = acc[i, a]
+            if jst:
+                t = eps2 * lap[i, a]
+                if fourth:
+                    t = t - c4 * lap4[i, a]
+                s = s + cpd * t
+            s = s + g[a]
+            if more:
+                s = s + extra[i, a]
+            v[i, a] += dt * s
+
+
+@njit(cache=True)
+def drift(x, v, sel, n, dt, dim):
+    r""":math:`\mathbf x_i \mathrel{+}= \Delta t\,\mathbf v_i` for the solid rows ``i < n``."""
+    for i in range(n):
+        if sel[i]:
+            for a in range(dim):
+                x[i, a] += dt * v[i, a]

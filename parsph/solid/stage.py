@@ -175,22 +175,17 @@ class TLSPH:
             kernels.hourglass(x3, X, p["F"], p["m"], self.vol, p["modulus"], fp, *args, ctx.h,
                               dim, alpha, acc)
         eps2, eps4 = self.num.jst_eps2, self.num.jst_eps4
+        lap = lap4 = none = np.empty((0, 3))
         if eps2 > 0.0 or eps4 > 0.0:
             lap = p["lapv"]
             kernels.laplacian(v3, x3, p["m"], p["rho0"], fp, *args, ctx.h, dim, lap)
-            jst = eps2 * lap[:n]
             if eps4 > 0.0:
                 ctx.update_halo(["lapv"])
                 lap4 = np.zeros((n, 3))
                 kernels.laplacian(lap, x3, p["m"], p["rho0"], fp, *args, ctx.h, dim, lap4)
-                jst = jst - ctx.d ** 2 * eps4 * lap4
-            acc += cp * ctx.d * jst
-        acc = acc[:, :dim] + np.asarray(ctx.body_acceleration(ctx.time), dtype=float)[:dim]
-        if extra is not None:
-            acc += extra
-        solid = sel[:n]
-        v = p["v"]
-        v[:n][solid] += dt * acc[solid]
+        g = np.asarray(ctx.body_acceleration(ctx.time), dtype=float)[:dim]
+        kernels.kick(p["v"], acc, lap, lap4, g, none if extra is None else extra, sel, n, dt,
+                     cp * ctx.d, eps2, ctx.d ** 2 * eps4, dim)
         self.constrain(ctx)
         self._stats["solid_contacts"] = self._contact(ctx) if self.has_walls else 0
 
@@ -207,7 +202,6 @@ class TLSPH:
         p, n, dim = ctx.particles, ctx.particles.n_owned, ctx.dim
         X, sel, fp = self.X3, self.sel, self.fp
         args = (n, ctx.indptr, ctx.indices)
-        solid = sel[:n]
         v = p["v"]
         ctx.update_halo(["v"])
         fdot = np.zeros((n, 3, 3))
@@ -225,7 +219,7 @@ class TLSPH:
                 f"map failed at t = {ctx.time:.6g} s (rank {ctx.comm.rank}); reduce solid.cfl "
                 f"or run.dt, or raise solid.jst_eps4")
         raise_if_any(ctx.comm, error)
-        p["x"][:n][solid] += dt * v[:n][solid]
+        kernels.drift(p["x"], v, sel, n, dt, dim)
         self._stress_terms(ctx)
         if not stats:
             return
