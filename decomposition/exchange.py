@@ -11,6 +11,7 @@ counts as early.
 """
 from __future__ import annotations
 
+import math
 import zlib
 
 import numpy as np
@@ -136,7 +137,7 @@ def migrate(comm, fields: dict, dest) -> dict:
         a = np.asarray(fields[name])
         send = np.ascontiguousarray(a[order])
         recv = np.empty((n_recv,) + a.shape[1:], dtype=a.dtype)
-        row_bytes = a.dtype.itemsize * int(np.prod(a.shape[1:], dtype=np.int64))
+        row_bytes = a.dtype.itemsize * math.prod(a.shape[1:])
         if row_bytes > 0:
             rowtype = row_datatype(row_bytes)
             try:

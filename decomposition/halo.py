@@ -43,6 +43,8 @@ but each must be called by all ranks that exchange rows with each other.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from mpi4py import MPI
 from numba import njit
@@ -241,7 +243,7 @@ class Halo:
         for name in sorted(arrays):  # the same order on every rank
             a, b = arrays[name], out[name]
             b[dst_d[me]:dst_d[me + 1]] = a[src_d[me]:src_d[me + 1]]
-            row = a.dtype.itemsize * int(np.prod(a.shape[1:], dtype=np.int64))
+            row = a.dtype.itemsize * math.prod(a.shape[1:])
             if row == 0:
                 continue
             abytes, bbytes = byte_view(a), byte_view(b)
@@ -270,6 +272,8 @@ class Halo:
         dict of str to ndarray
             ``n_halo`` rows per field, ordered by source rank, then send order.
         """
+        if self.n_send == 0 and self.n_halo == 0:  # one rank, no periodic image: no rows
+            return self._no_rows(fields, "Halo.exchange")
         shift_fields = set(shift_fields)
         send, out = {}, {}
         for name in fields:
@@ -290,6 +294,20 @@ class Halo:
             send[name] = np.ascontiguousarray(rows)
             out[name] = np.empty((self.n_halo,) + a.shape[1:], dtype=a.dtype)
         MPI.Request.Waitall(self._post(send, out, forward=True))
+        return out
+
+    def _no_rows(self, fields: dict, where: str) -> dict:
+        """The exchange of a pattern that moves nothing: empty rows of every field (the
+        fields are checked as a real exchange checks them)."""
+        out = {}
+        for name, a in fields.items():
+            a = np.asarray(a)
+            check_field(name, a, where)
+            if a.shape[0] < self.n_owned:
+                raise ValueError(f"{where}: field '{name}' has {a.shape[0]} rows but the halo "
+                                 f"was built for {self.n_owned} owned rows; rebuild the halo "
+                                 f"after particles move between ranks")
+            out[name] = np.empty((0,) + a.shape[1:], dtype=a.dtype)
         return out
 
     def reverse_add(self, values: dict) -> dict:
@@ -322,7 +340,7 @@ class Halo:
         out = {}
         for name, b in back.items():
             res = np.zeros((self.n_owned,) + b.shape[1:], dtype=b.dtype)
-            width = int(np.prod(b.shape[1:], dtype=np.int64))
+            width = math.prod(b.shape[1:])
             if b.dtype.kind == "f" and b.shape[0] and width:
                 flat_b = b.reshape(b.shape[0], width)
                 flat_r = res.reshape(self.n_owned, width)

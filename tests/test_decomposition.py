@@ -459,3 +459,19 @@ def test_rcb_uses_every_rank(comm):
     rcb, owned = _distribute(comm, X, box)
     assert len(owned["id"]) > 0
     assert len(set(comm.allgather(tuple(rcb.subbox(comm.rank)[0])))) == comm.size
+
+
+def test_halo_without_rows_checks_fields_like_a_real_exchange():
+    """The one-rank, non-periodic pattern moves nothing: it returns empty rows of each field's
+    shape and dtype, and still refuses fields shorter than the owned rows."""
+    from mpi4py import MPI
+    comm = MPI.COMM_SELF
+    box = Box((0.0, 0.0), (1.0, 1.0), (False, False))
+    x = np.random.default_rng(3).random((10, 2))
+    halo = Halo.build(comm, RCB.build(comm, x, box), x, 0.2, box)
+    assert halo.n_send == halo.n_halo == 0
+    got = halo.exchange({"x": x, "F": np.zeros((10, 2, 2), dtype=np.float32)})
+    assert got["x"].shape == (0, 2) and got["F"].shape == (0, 2, 2)
+    assert got["F"].dtype == np.float32
+    with pytest.raises(ValueError, match="rebuild the halo"):
+        halo.exchange({"x": x[:5]})
