@@ -582,3 +582,73 @@ def test_block_system_grown_by_resize_solves_as_a_fresh_one(comm, mpi_tmp_path):
     assert views[0] == views[1] == ("1", "0.4", "l1-Gauss-Seidel")
     assert info["iterations"] == fresh_info["iterations"]
     assert np.array_equal(x, y)
+
+
+def test_unit_diagonal_scales_rows_and_keeps_the_solution():
+    """Each row is divided by its diagonal (rows without a positive one are left alone),
+    the returned scale is 1 / diagonal, and the scaled system with the scaled right-hand
+    side has the unscaled one's solution."""
+    from solvers.csr import scale_rows, unit_diagonal
+    n, first = 30, 100  # a block of rows 100..129 of a larger system: global columns
+    rng = np.random.default_rng(11)
+    a = sp.random(n, n, density=0.2, random_state=12, format="csr")
+    diag = 10.0 ** rng.uniform(-9, 2, n)  # diagonals over eleven orders, as at a wall
+    diag[7] = 0.0
+    a = (a + sp.diags(diag) + sp.diags(np.full(n, 1e-12))).tocsr()
+    a.sort_indices()
+    a.data[a.indptr[7]:a.indptr[8]][a.indices[a.indptr[7]:a.indptr[8]] == 7] = -1.0
+    orig = a.copy()
+    cols = a.indices.astype(np.int64) + first
+    scale = unit_diagonal(a.indptr.astype(np.int64), cols, a.data, first)
+    d = orig.diagonal()
+    expect = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 1.0)
+    np.testing.assert_allclose(scale, expect, rtol=1e-15)
+    np.testing.assert_allclose(a.diagonal()[d > 0], 1.0, rtol=1e-15)
+    assert a.diagonal()[7] == -1.0  # not positive: left as it was
+    np.testing.assert_allclose(a.toarray(), sp.diags(scale) @ orig.toarray(), rtol=1e-15)
+    b = rng.uniform(-1, 1, n)
+    np.testing.assert_allclose(spla.spsolve(a.tocsc(), b * scale), spla.spsolve(orig.tocsc(), b),
+                               rtol=1e-9)
+    twice = orig.copy()
+    scale_rows(twice.indptr.astype(np.int64), twice.data, scale)
+    np.testing.assert_allclose(twice.toarray(), a.toarray(), rtol=0, atol=0)
+
+
+def test_product_operator_with_scaled_rows_solves_the_unscaled_system(comm):
+    """A + L^T R with the rows of A scaled to a unit diagonal (row_scale) has the solution
+    of the unscaled operator; the reference is a direct solve of the whole operator."""
+    from solvers.csr import unit_diagonal
+    n = 12
+    total = n * n
+    rng = np.random.default_rng(5)
+    m = 6  # interface rows, all on rank 0
+    ptr_all = np.arange(m + 1) * 3
+    cols_all = np.sort(rng.choice(total, size=(m, 3), replace=False), axis=1).ravel()
+    left_all, right_all = rng.uniform(0.5, 1.5, 3 * m), rng.uniform(0.5, 1.5, 3 * m)
+    full = full_matrix(total, poisson_triplets(n, np.arange(total)))
+    weights = sp.diags(10.0 ** rng.uniform(-6, 3, total))  # rows of any magnitude
+    full = (weights @ full).tocsr()
+    lmat = sp.csr_matrix((left_all, cols_all, ptr_all), shape=(m, total))
+    rmat = sp.csr_matrix((right_all, cols_all, ptr_all), shape=(m, total))
+    op = (full + lmat.T @ rmat).tocsc()
+    b = rhs_of(total)
+    reference = spla.spsolve(op, b)
+    with LinearSystem(comm, "tstp_", block_rows(comm, total), ksp_type="gmres",
+                      rtol=KSP_RTOL_EXACT, max_it=5000) as system:
+        first, stop = system.owned_range
+        block = full[first:stop]
+        block.sort_indices()
+        indptr = block.indptr.astype(np.int64)
+        cols = block.indices.astype(np.int64)
+        vals = block.data.copy()
+        scale = unit_diagonal(indptr, cols, vals, first)
+        system.assemble_csr(indptr, cols, vals)
+        mine = comm.rank == 0
+        ptr = ptr_all if mine else np.zeros(1, dtype=np.int64)
+        sel = slice(0, ptr[-1])
+        near = (np.zeros(stop - first + 1, dtype=np.int64), np.zeros(0, dtype=np.int64),
+                np.zeros(0))
+        system.set_product(ptr, cols_all[sel], left_all[sel], right_all[sel], near,
+                           row_scale=scale)
+        x, _ = system.solve(b[first:stop] * scale)
+        assert_matches(x, reference[first:stop])
