@@ -47,3 +47,10 @@ def test_splishsplash_fluid_block_matches_the_parsph_column(comm, tmp_path):
     for ax, block_ax in zip(range(3), (0, 2, 1)):
         assert np.allclose(np.unique(fluid[:, ax].round(12)), axes[block_ax])
         assert np.allclose(axes[block_ax], (np.arange(len(axes[block_ax])) + 0.5) * d)
+
+
+def test_overhead_fit_recovers_the_fixed_cost_and_the_slope():
+    """jobs/bench_overhead.py: the intercept of s/step against particles is the fixed cost."""
+    from bench_overhead import fit
+    a, b = fit([(n, 2e-3 + 5e-6 * n) for n in (500, 1000, 2000, 4000)])
+    assert a == pytest.approx(2e-3) and b == pytest.approx(5e-6)
