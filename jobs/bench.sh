@@ -40,5 +40,7 @@ done
 # IISPH dam break with PySPH side by side (same spacing, 22,050 fluid particles, to t = 0.1 s;
 # parsph on 1 and 2 ranks; installs PySPH into a scratch venv outside the repository)
 "$PY" jobs/bench_pysph.py --divisions 105 --end-time 0.1 --csv "$CSV"
+"$PY" jobs/bench_splishsplash.py --fluid-particles 24000 --end-time 0.1 --csv "$CSV"
+"$PY" jobs/bench_overhead.py --ranks 1 2 --csv "$CSV"
 echo "== $CSV"
 column -s, -t < "$CSV"
