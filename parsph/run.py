@@ -552,7 +552,7 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
     """
     from parsph import checkpoint, faults
     from parsph.errors import Preempted
-    from parsph.io import FrameWriter, StatsWriter
+    from parsph.io import FrameWriter, StatsWriter, xdmf_writer
     from parsph.log import Progress
     from parsph.probes import ProbeOutput
 
@@ -613,7 +613,7 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
     mode = "a" if continuing else "w"
     if continuing and comm.rank == 0:
         _truncate_stats(os.path.join(out, "stats.csv"), ctx.step)
-    with FrameWriter(h5, comm, dim, attrs=attrs, xdmf=xdmf, mode=mode) as writer, \
+    with FrameWriter(h5, comm, dim, attrs=attrs, on_frame=xdmf_writer(xdmf), mode=mode) as writer, \
             StatsWriter(os.path.join(out, "stats.csv"), stats_columns(stages),
                         enabled=comm.rank == 0, mode=mode) as stats, _StopRequest() as stop, \
             ProbeOutput(ctx, continuing) as probes:

@@ -222,10 +222,10 @@ def _check_xdmf(xdmf_path, dim, n_frames):
 
 @pytest.mark.parametrize("dim", [2, 3])
 def test_xdmf_describes_every_frame(comm, mpi_tmp_path, dim):
-    from parsph.io import FrameWriter, write_xdmf
+    from parsph.io import FrameWriter, write_xdmf, xdmf_writer
 
     live = os.path.join(mpi_tmp_path, "particles.xdmf")
-    with FrameWriter(mpi_tmp_path, comm, dim, xdmf=live) as w:
+    with FrameWriter(mpi_tmp_path, comm, dim, on_frame=xdmf_writer(live)) as w:
         for step in range(3):
             rows = _rows(comm.rank, 2 + comm.rank, dim, step)
             rows["sigma"] = rows["v"][:, :, None] * rows["x"][:, None, :]

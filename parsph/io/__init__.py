@@ -3,7 +3,9 @@
 - :class:`~parsph.io.hdf5.FrameWriter`, :func:`~parsph.io.hdf5.read_frames`,
   :func:`~parsph.io.hdf5.read_frame`, :func:`~parsph.io.hdf5.read_attrs`:
   ``particles.h5``, written collectively, read serially.
-- :func:`~parsph.io.xdmf.write_xdmf`: ``particles.xdmf`` for ParaView (rank 0 only).
+- :func:`~parsph.io.xdmf.write_xdmf`: ``particles.xdmf`` for ParaView (rank 0 only);
+  :func:`~parsph.io.xdmf.xdmf_writer` rewrites it after each frame a ``FrameWriter``
+  writes. ``xdmf`` imports ``hdf5``, never the reverse.
 - :class:`~parsph.io.stats.StatsWriter`, :func:`~parsph.io.stats.read_stats`:
   ``stats.csv``.
 - :class:`~parsph.io.probes.ProbeWriter`, :func:`~parsph.io.probes.read_probes`:
@@ -26,6 +28,7 @@ _EXPORTS = {
     "read_frame": "parsph.io.hdf5",
     "read_attrs": "parsph.io.hdf5",
     "write_xdmf": "parsph.io.xdmf",
+    "xdmf_writer": "parsph.io.xdmf",
     "StatsWriter": "parsph.io.stats",
     "read_stats": "parsph.io.stats",
     "ProbeWriter": "parsph.io.probes",

@@ -148,9 +148,11 @@ class FrameWriter:
     mode : {"w", "a"}
         ``"w"`` creates or truncates the file; ``"a"`` appends to an existing file (a
         restart), in which case a frame written again at an existing step replaces it.
-    xdmf : str or os.PathLike, optional
-        If given, rank 0 rewrites this XDMF file after each frame (atomically), so a run
-        cut short can be opened in ParaView. References are relative to its directory.
+    on_frame : callable, optional
+        Called on rank 0 after each frame as ``on_frame(h5_path, frames)`` with the
+        index of the frames written so far (:class:`FrameInfo`), e.g. to rewrite an XDMF
+        file (:func:`parsph.io.xdmf.xdmf_writer`) so that a run cut short can be opened in
+        ParaView; an exception it raises is raised on every rank.
 
     Notes
     -----
@@ -159,11 +161,11 @@ class FrameWriter:
     """
 
     def __init__(self, path, comm, dim: int, attrs: dict | None = None, mode: str = "w",
-                 xdmf=None):
+                 on_frame=None):
         self.path = resolve_path(path)
         self.comm = comm
         self.dim = int(dim)
-        self.xdmf_path = None if xdmf is None else os.fspath(xdmf)
+        self.on_frame = on_frame
         self.frames: list[FrameInfo] = []
         self._file = None
         error = None
@@ -376,13 +378,11 @@ class FrameWriter:
         f.flush()
         self.frames = [fr for fr in self.frames if fr.step != info.step] + [info]
         self.frames.sort(key=lambda fr: fr.step)
-        if self.xdmf_path is not None:
+        if self.on_frame is not None:
             error = None
             if self.comm.rank == 0:
                 try:
-                    from parsph.io.xdmf import write_xdmf
-
-                    write_xdmf(self.path, self.xdmf_path, frames=self.frames)
+                    self.on_frame(self.path, self.frames)
                 except Exception as exc:  # noqa: BLE001 - agreed on by every rank below
                     error = exc
             raise_if_any(self.comm, error)

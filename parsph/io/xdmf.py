@@ -194,3 +194,15 @@ def write_xdmf(h5_path, xdmf_path, frames: list[FrameInfo] | None = None) -> str
             pass
         raise
     return xdmf_path
+
+
+def xdmf_writer(xdmf_path):
+    """A :class:`~parsph.io.hdf5.FrameWriter` ``on_frame`` callback that rewrites
+    ``xdmf_path`` (atomically) from the writer's index after each frame; references are
+    relative to its directory."""
+    xdmf_path = os.fspath(xdmf_path)
+
+    def on_frame(h5_path, frames):
+        write_xdmf(h5_path, xdmf_path, frames=frames)
+
+    return on_frame
