@@ -272,8 +272,7 @@ class Halo:
         dict of str to ndarray
             ``n_halo`` rows per field, ordered by source rank, then send order.
         """
-        if self.n_send == 0 and self.n_halo == 0:  # one rank, no periodic image: no rows
-            return self._no_rows(fields, "Halo.exchange")
+        moves = self.n_send > 0 or self.n_halo > 0  # not so on one rank without images
         shift_fields = set(shift_fields)
         send, out = {}, {}
         for name in fields:
@@ -283,31 +282,21 @@ class Halo:
                 raise ValueError(f"Halo.exchange: field '{name}' has {a.shape[0]} rows but "
                                  f"the halo was built for {self.n_owned} owned rows; rebuild "
                                  f"the halo after particles move between ranks")
+            shift = name in shift_fields and self.send_shift is not None
+            if shift and a.shape[1:] != self.send_shift.shape[1:]:
+                raise ValueError(f"Halo.exchange: shift field '{name}' has rows of shape "
+                                 f"{a.shape[1:]} but the image offsets "
+                                 f"{self.send_shift.shape[1:]}; list only positions in "
+                                 f"shift_fields")
+            out[name] = np.empty((self.n_halo,) + a.shape[1:], dtype=a.dtype)
+            if not moves:
+                continue
             rows = a[self.send_index]
-            if name in shift_fields and self.send_shift is not None:
-                if a.shape[1:] != self.send_shift.shape[1:]:
-                    raise ValueError(f"Halo.exchange: shift field '{name}' has rows of shape "
-                                     f"{a.shape[1:]} but the image offsets "
-                                     f"{self.send_shift.shape[1:]}; list only positions in "
-                                     f"shift_fields")
+            if shift:
                 rows = (rows + self.send_shift).astype(a.dtype, copy=False)
             send[name] = np.ascontiguousarray(rows)
-            out[name] = np.empty((self.n_halo,) + a.shape[1:], dtype=a.dtype)
-        MPI.Request.Waitall(self._post(send, out, forward=True))
-        return out
-
-    def _no_rows(self, fields: dict, where: str) -> dict:
-        """The exchange of a pattern that moves nothing: empty rows of every field (the
-        fields are checked as a real exchange checks them)."""
-        out = {}
-        for name, a in fields.items():
-            a = np.asarray(a)
-            check_field(name, a, where)
-            if a.shape[0] < self.n_owned:
-                raise ValueError(f"{where}: field '{name}' has {a.shape[0]} rows but the halo "
-                                 f"was built for {self.n_owned} owned rows; rebuild the halo "
-                                 f"after particles move between ranks")
-            out[name] = np.empty((0,) + a.shape[1:], dtype=a.dtype)
+        if moves:
+            MPI.Request.Waitall(self._post(send, out, forward=True))
         return out
 
     def reverse_add(self, values: dict) -> dict:

@@ -121,12 +121,11 @@ def run_worker(ranks, size, k1, k2):
 
 def fit(points):
     """Least-squares line s = a + b n through (n, s): returns (a, b)."""
-    n = len(points)
-    mx = sum(p for p, _ in points) / n
-    my = sum(s for _, s in points) / n
-    sxx = sum((p - mx) ** 2 for p, _ in points)
-    b = sum((p - mx) * (s - my) for p, s in points) / sxx
-    return my - b * mx, b
+    import numpy as np
+
+    n, s = np.asarray(points, dtype=float).T
+    b, a = np.polyfit(n, s, 1)
+    return float(a), float(b)
 
 
 def main():
