@@ -198,19 +198,22 @@ hi = [3.0, 0.0]
 """
 
 
-def dense_system(kernel, *args, n_points, dim=1):
+def dense_system(kernel, *args, n_points, dim=1, capacity=None):
     """Run a CSR kernel of ``parsph.fluid.assembly`` (``viscous_csr``, ``ppe_csr``) on
     rows numbered from 0 and return its matrix dense, with the right-hand side; checks
-    on the way that every row's columns are sorted and distinct."""
+    on the way that every row's columns are sorted and distinct and, given
+    ``capacity`` (``assembly.csr_capacity``), that the kernel wrote nothing past it."""
     import numpy as np
 
     n = n_points * dim
-    cap = dim * dim * (n_points * n_points + n_points)
+    cap = dim * dim * (n_points * n_points + n_points) if capacity is None else capacity
+    guard = 64
     ptr = np.zeros(n + 1, dtype=np.int32)
-    cols = np.empty(cap, dtype=np.int32)
-    vals = np.empty(cap)
+    cols = np.full(cap + guard, -7, dtype=np.int32)
+    vals = np.full(cap + guard, -7.0)
     nnz, rhs = kernel(*args, 0, ptr, cols, vals)
-    assert ptr[-1] == nnz and np.all(np.diff(ptr) >= 0)
+    assert ptr[-1] == nnz <= cap and np.all(np.diff(ptr) >= 0)
+    assert np.all(cols[cap:] == -7) and np.all(vals[cap:] == -7.0), "wrote past the capacity"
     A = np.zeros((n, n))
     for r in range(n):
         c = cols[ptr[r]:ptr[r + 1]]

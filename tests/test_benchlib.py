@@ -54,3 +54,22 @@ def test_overhead_fit_recovers_the_fixed_cost_and_the_slope():
     from bench_overhead import fit
     a, b = fit([(n, 2e-3 + 5e-6 * n) for n in (500, 1000, 2000, 4000)])
     assert a == pytest.approx(2e-3) and b == pytest.approx(5e-6)
+
+
+@pytest.mark.parametrize("target", [2e4, 2e5, 1e6])
+def test_memory_tank_has_about_the_particles_asked_for(tmp_path, target):
+    """jobs/bench_memory.py: the 3D coupled tank at the size asked for (within the
+    rounding of d to a whole number of particles across 0.1 m), both phases in it."""
+    from bench_memory import scene
+
+    from parsph.geometry import estimate_count
+    from parsph.pipeline import plan
+    from parsph.scene import load_scene
+
+    text, d = scene(target)
+    path = tmp_path / "tank.toml"
+    path.write_text(text)
+    sc = load_scene(str(path))
+    assert sc.domain.dim == 3 and sc.domain.particle_size == d
+    assert 0.6 * target < estimate_count(sc) < 1.6 * target
+    assert [s.name for s in plan(sc)] == ["coupled"]

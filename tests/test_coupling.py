@@ -249,7 +249,8 @@ def test_viscous_exchange_between_phases_conserves_momentum():
     row = np.arange(4, dtype=np.int64)
     dt, g = 1e-2, np.array([0.0, -9.81])
     A, rhs = dense_system(assembly.viscous_csr, x, v, m, rho, nu, fluid, scale, slip, row,
-                          indptr, indices, h, 2, dt, g, False, n_points=4, dim=2)
+                          indptr, indices, h, 2, dt, g, False, n_points=4, dim=2,
+                          capacity=assembly.csr_capacity(fluid, scale, row, indptr, 2, True))
     assert rhs[2] == pytest.approx(v[2])  # solid: its predictor (eq. 7), no extra dt g
     assert rhs[0] == pytest.approx(v[0] + dt * g)
     vstar = np.random.default_rng(3).normal(size=(4, 2))

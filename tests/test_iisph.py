@@ -51,7 +51,9 @@ def test_ppe_matrix_is_eq35_with_no_penetration_rows():
     vs = np.zeros((4, 2))
     vs[0] = [0.01, 0.0]  # v* of particle 0 only: divergence source of rows 1 and 3
     A, rhs = dense_system(assembly.ppe_csr, x, vs, m, rho, rho0, fluid, free, row, indptr,
-                          indices, h, 2, dt, alpha, d, False, False, n_points=4)
+                          indices, h, 2, dt, alpha, d, False, False, n_points=4,
+                          capacity=assembly.csr_capacity(fluid, np.zeros(4), row, indptr, 1,
+                                                         False))
     for i in (0, 1):  # fluid rows: -s_i * eq. (35), s_i = rho_i d^2 / (2 rho0_i)
         s = assembly.ppe_row_scale(rho[i], rho0[i], d)
         for j in range(4):
@@ -81,6 +83,24 @@ def test_ppe_matrix_is_eq35_with_no_penetration_rows():
     assert rhs[3] != 0.0
 
 
+def test_csr_capacity_counts_the_rows_in_the_system_only():
+    """The work arrays of the CSR kernels are sized by the rows in the system: ``dim``
+    scalar rows of (neighbours + 1) slots, full ``dim``-blocks for fluid and type-II rows
+    under eq. (34), nothing for a row outside the system (a type-I solid)."""
+    d, h, x, m, fluid, free, rho, rho0, indptr, indices, row = _small_set()
+    none = np.zeros(4)  # rows 0-2 fluid, row 3 a wall: 4 slots per row
+    assert assembly.csr_capacity(fluid, none, row, indptr, 1, False) == 4 * 4
+    assert assembly.csr_capacity(fluid, none, row, indptr, 3, False) == 3 * 4 * 4
+    assert assembly.csr_capacity(fluid, none, row, indptr, 3, True) == 3 * 4 * (3 * 3 + 1)
+    typed = fluid.copy()
+    typed[2] = 0  # particle 2 a type-II solid: still a full block
+    solid = np.array([0.0, 0.0, 0.5, 0.0])
+    assert assembly.csr_capacity(typed, solid, row, indptr, 3, True) == 3 * 4 * (3 * 3 + 1)
+    out = row.copy()
+    out[2] = -1  # ... or a type-I solid, outside the system
+    assert assembly.csr_capacity(typed, solid, out, indptr, 3, True) == 3 * 4 * (3 * 2 + 1)
+
+
 @pytest.mark.parametrize("morris", [False, True], ids=["eq34", "morris"])
 def test_viscous_predictor_is_eq34(morris):
     d, h, x, m, fluid, free, rho, rho0, indptr, indices, row = _small_set()
@@ -90,8 +110,10 @@ def test_viscous_predictor_is_eq34(morris):
     slip = np.zeros(4, dtype=np.uint8)
     g = np.array([0.0, -9.81])
     solid = np.zeros(4)
+    cap = assembly.csr_capacity(fluid, solid, row, indptr, dim, not morris)
     A, rhs = dense_system(assembly.viscous_csr, x, v, m, rho, nu, fluid, solid, slip, row,
-                          indptr, indices, h, dim, dt, g, morris, n_points=4, dim=dim)
+                          indptr, indices, h, dim, dt, g, morris, n_points=4, dim=dim,
+                          capacity=cap)
     # apply A to an arbitrary v*: row 0 must be v*_0 - dt * (viscous term (34) at v*)
     rng = np.random.default_rng(1)
     vstar = rng.normal(size=(4, 2))

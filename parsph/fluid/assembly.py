@@ -222,13 +222,30 @@ def rows_in_order(row, n, first):
 
 
 @njit(cache=True)
+def csr_capacity(fluid, solid, row, indptr, dim, full):
+    """Entries the CSR kernels may write for the owned rows in the system (``row >= 0``):
+    ``dim`` scalar rows of ``(neighbours + 1) bw`` slots each, ``bw = dim`` for a fluid or
+    type-II row when ``full`` (the blocks of eq. (34)), else 1 (:func:`viscous_csr`; with
+    ``dim = 1`` and ``full = False`` the scalar PPE of :func:`ppe_csr`). Rows outside the
+    system (type-I solids) take nothing: sizing by every owned row held a 3D coupled
+    scene's viscous buffers at 5.5 KB per particle."""
+    total = 0
+    for i in range(indptr.shape[0] - 1):
+        if row[i] < 0:
+            continue
+        bw = dim if full and (fluid[i] or solid[i] > 0.0) else 1
+        total += dim * bw * (indptr[i + 1] - indptr[i] + 1)
+    return total
+
+
+@njit(cache=True)
 def viscous_csr(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, dim, dt,
                 g, morris, first, out_ptr, out_cols, out_vals):
     """CSR block and right-hand side of the implicit viscous predictor (30)/(34).
 
     Writes the owned scalar rows (block size ``dim``: component ``a`` of global point
     ``P`` is row ``P dim + a``) straight into ``out_ptr`` (``n_local + 1``), ``out_cols``
-    and ``out_vals`` (capacity ``dim^2 (pairs + n_owned)``): columns sorted and distinct
+    and ``out_vals`` (capacity :func:`csr_capacity`): columns sorted and distinct
     in each row, no triplets and no sort (the neighbour lists must be sorted by
     ``row``, :func:`solvers.csr.sort_neighbours_by_row`). ``first`` is the first global
     point of this rank. Returns ``(nnz, rhs)`` with ``rhs`` of shape (n_owned, dim). See

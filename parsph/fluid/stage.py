@@ -285,7 +285,8 @@ class IISPH:
         """
         p, n, dim, h = ctx.particles, ctx.n_owned, ctx.dim, ctx.h
         t0 = time.perf_counter()
-        ptr, cols, vals = self._csr_buffers(visc, dim * dim * (indptr[n] + n))
+        ptr, cols, vals = self._csr_buffers(visc, assembly.csr_capacity(
+            fluid, solid, row, indptr, dim, not morris))
         nnz, rhs = assembly.viscous_csr(
             p["x"], p["v"], m, p["rho"], p["nu"], fluid, solid, p["wall_slip"], row,
             indptr, indices, h, dim, dt, g, morris, visc.offset // dim, ptr, cols, vals)
@@ -407,7 +408,8 @@ class IISPH:
         # rescaled so the correction is per CFL step
         alpha = self.num.alpha * min(1.0, (dt / self._dt_cfl) ** 2) if self._dt_cfl > 0 \
             else self.num.alpha
-        ptr, cols, vals = self._csr_buffers(ppe, indptr[n] + n)
+        ptr, cols, vals = self._csr_buffers(ppe, assembly.csr_capacity(
+            fluid, solid, row, indptr, 1, False))
         expansion = self.num.density_correction == "both" or (
             self.num.density_correction == "auto" and not confined)
         nnz, rhs = assembly.ppe_csr(
