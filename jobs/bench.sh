@@ -42,5 +42,6 @@ done
 "$PY" jobs/bench_pysph.py --divisions 105 --end-time 0.1 --csv "$CSV"
 "$PY" jobs/bench_splishsplash.py --fluid-particles 24000 --end-time 0.1 --csv "$CSV"
 "$PY" jobs/bench_overhead.py --ranks 1 2 --csv "$CSV"
+"$PY" jobs/bench_memory.py --particles 1e5 1e6 --ranks 2 --csv "$CSV"
 echo "== $CSV"
 column -s, -t < "$CSV"
