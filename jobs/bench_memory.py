@@ -110,9 +110,9 @@ def worker(args):
     import solvers.system as system
     from decomposition import world
     from decomposition.reduce import global_max, global_sum
-    from parsph.budget import estimate
-    from parsph.pipeline import plan
-    from parsph.scene import load_scene
+    from parsph.scene.budget import estimate
+    from parsph.step.pipeline import plan
+    from parsph.scene.loader import load_scene
 
     comm = world()
     warm, _ = scene(5e3)

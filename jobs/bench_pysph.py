@@ -15,7 +15,7 @@ alternately, ``--repeats`` times each (noise between identical runs reaches 25 %
 prints one row per code and rank count (medians): particles, steps, run wall time (each
 code's own timer, start-up excluded: parsph's "done ... s wall", PySPH's "Run took"),
 process wall time, particle-steps/s, the mean front error against Martin & Moyce (1952)
-and Koshizuka & Oka (1996) (``parsph.fluid.references.front_errors``, the scene's
+and Koshizuka & Oka (1996) (``parsph.verify.fluid.front_errors``, the scene's
 reference; front = rightmost fluid particle below 0.1 a, + d/2, sampled at the same
 frame times), and the wall-time ratio parsph / PySPH. Goal of issue 4: ratio <= 0.5 with
 a front error no worse than PySPH's.
@@ -131,8 +131,8 @@ def lattice_neighbours(radius):
 
 def mean_front_error(T, Z):
     """Mean |Z - Z_exp| / Z_exp over both experiments at their times in (0.5, T.max()]:
-    the scene's reference (``parsph.fluid.references.dam_break``) on a (T, Z) series."""
-    from parsph.fluid.references import DAM_BREAK_DATA, front_errors
+    the scene's reference (``parsph.verify.fluid.dam_break``) on a (T, Z) series."""
+    from parsph.verify.fluid import DAM_BREAK_DATA, front_errors
 
     errs = []
     for fname in DAM_BREAK_DATA:
@@ -172,7 +172,7 @@ def run_parsph(ranks, out, d, end, every, extra=()):
 
 def read_parsph(res):
     """Add particle counts, PPE iterations and the front series of a parsph run."""
-    from parsph.fluid.references import front_positions
+    from parsph.verify.fluid import front_positions
     from parsph.io import read_stats
 
     stats = read_stats(os.path.join(res["out"], "stats.csv"))
@@ -248,7 +248,7 @@ def main():
     writer.writeheader()
     writer.writerows([{k: (f"{v:.4g}" if isinstance(v, float) else v) for k, v in r.items()}
                       for r in rows])
-    from parsph.fluid.references import DAM_BREAK_DATA, experiment
+    from parsph.verify.fluid import DAM_BREAK_DATA, experiment
 
     print("# front Z = z/a at the experiments' times: T, experiment, "
           + ", ".join(f"{c}@{r}" for c, r in fronts))

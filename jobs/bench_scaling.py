@@ -104,7 +104,7 @@ def worker(args):
 
     import numpy as np
 
-    import parsph.run as prun
+    import parsph.core.context as prun
     from decomposition import world
     from decomposition.reduce import global_max, global_sum
 

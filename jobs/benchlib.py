@@ -61,8 +61,8 @@ def run_benchmark(comm, scene, overrides=(), petsc_args=()):
 
     from decomposition.reduce import barrier, broadcast
     from parsph.io import read_stats
-    from parsph.run import run
-    from parsph.scene import load_scene
+    from parsph.step.run import run
+    from parsph.scene.loader import load_scene
 
     tmp = broadcast(comm, tempfile.mkdtemp(prefix="parsph-bench-") if comm.rank == 0 else None)
     if "\n" in scene:  # TOML text

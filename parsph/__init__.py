@@ -1,10 +1,16 @@
 """parsph: phase-change TLSPH-IISPH landslide simulation on MPI and PETSc.
 
-The Python API serves scripts and tests the way the CLI does::
+The Python API serves scripts and tests the way the CLI does (collective: run it under
+``mpirun`` like the CLI)::
 
-    from parsph.scene import load_scene
-    from parsph.run import run
-    run(load_scene("dam_break", overrides=["domain.particle_size=0.01"]), out="out/db")
+    import parsph
+    scene = parsph.load_scene("dam_break", overrides=["domain.particle_size=0.01"])
+    summary = parsph.run(scene, out="out/db")   # steps, time, wall_s, particles, ...
+
+The folders follow a step's data flow (docs/architecture.md): ``scene/`` (TOML ->
+validated scene -> particles), ``core/`` (particle store, kernel, neighbours, density,
+contact), ``solid/``, ``fluid/``, ``coupling/``, ``step/`` (driver, stages,
+checkpoints), ``io/`` and ``cli/``.
 """
 import os as _os
 
@@ -25,3 +31,15 @@ for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
     _os.environ.setdefault(_name, "1")
 
 __version__ = "0.1.0"
+
+
+def __getattr__(name):
+    """``parsph.run`` and ``parsph.load_scene``, imported on first use (``import parsph``
+    stays cheap for the command line)."""
+    if name == "run":
+        from parsph.step.run import run
+        return run
+    if name == "load_scene":
+        from parsph.scene.loader import load_scene
+        return load_scene
+    raise AttributeError(f"module 'parsph' has no attribute {name!r}")

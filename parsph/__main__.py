@@ -1,3 +1,3 @@
-from parsph.cli import main
+from parsph.cli.main import main
 
 raise SystemExit(main())

@@ -15,6 +15,7 @@ Typical use::
 See ``docs/solvers.md``.
 """
 from solvers.petsc_env import init
-from solvers.system import LinearSystem, SolverError
+from solvers.errors import SolverError
+from solvers.system import LinearSystem
 
 __all__ = ["init", "LinearSystem", "SolverError"]

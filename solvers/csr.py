@@ -1,6 +1,6 @@
 """Numba helper that lets kernels write CSR rows in column order.
 
-The IISPH kernels (``parsph.fluid.assembly.viscous_csr``, ``ppe_csr``) write each matrix
+The IISPH kernels (``parsph.fluid.viscous.viscous_csr``, ``ppe_csr``) write each matrix
 row while they walk a particle's neighbour list; with the lists sorted by global row
 here, the columns come out in order, so the CSR block needs neither triplets nor a sort.
 """

@@ -1,6 +1,6 @@
 """An operator ``A + L^T R - N``: an assembled matrix plus a product of two sparse blocks.
 
-The strongly coupled pressure step (``parsph/coupling/pressure.py``) needs
+The strongly coupled pressure step (``parsph/fluid/response.py``) needs
 ``C + L^T R``, where ``L`` and ``R`` have one row per unknown of a few interface points
 (owned by the rank that computes them) and couple unknowns up to two supports apart.
 Forming ``L^T R`` explicitly (``MatTransposeMatMult``) costs the square of a row's

@@ -87,6 +87,122 @@ hi = [1.5, 1.0, 0.9]
 sides = ["bottom"]
 """
 
+#: Gravity of the 2D scenes (m/s^2).
+G_2D = [0.0, -9.81]
+
+
+# --------------------------------------------------------------------- scene builder
+# Scenes written from Python values: the TOML text is still what the loader reads.
+
+
+def toml_value(value):
+    """One TOML value: a bool, a number (``repr`` of the float: round-trips), a string or
+    a (nested) list of them."""
+    import numbers
+
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, numbers.Integral):
+        return str(int(value))
+    if isinstance(value, numbers.Real):
+        return repr(float(value))
+    return "[" + ", ".join(toml_value(v) for v in value) + "]"
+
+
+def toml_text(**tables):
+    """TOML text of ``tables``, in the order given: a dict is a table, its dict values
+    sub-tables (``materials={"water": {...}}`` is ``[materials.water]``); a list of dicts
+    is an array of tables (``bodies=[...]``, one ``[[bodies]]`` each). Starts with a
+    newline, so that it can be appended to a scene's text."""
+    lines = [""]
+
+    def emit(name, table, array):
+        plain = {k: v for k, v in table.items() if not isinstance(v, dict)}
+        if plain or len(plain) == len(table):  # a header for its keys, or an empty table
+            lines.append(f"[[{name}]]" if array else f"[{name}]")
+        lines.extend(f"{k} = {toml_value(v)}" for k, v in plain.items())
+        for k, v in table.items():
+            if isinstance(v, dict):
+                emit(f"{name}.{k}", v, False)
+
+    for name, value in tables.items():
+        for item in value if isinstance(value, list) else [value]:
+            emit(name, item, isinstance(value, list))
+    return "\n".join(lines) + "\n"
+
+
+def scene_text(name, d, lo, hi, end, every=None, *, g=None, description=None,
+               periodic=None, run=None, output=None, progress=False, **tables):
+    """A scene's TOML: ``[scene]``, ``[domain]`` (``dim`` the length of ``lo``), ``[run]``
+    with ``end_time`` and ``run``'s keys, ``[output]`` with ``every`` (``end`` unless
+    given), ``progress`` (left out when None) and ``output``'s keys, ``[gravity]`` when
+    ``g`` is given; then ``tables`` (``materials``, ``bodies``, ... as :func:`toml_text`)."""
+    scene = {"name": name} if description is None else {"name": name, "description": description}
+    domain = {"dim": len(lo), "particle_size": d, "lo": lo, "hi": hi}
+    if periodic is not None:
+        domain["periodic"] = periodic
+    out = {"every": end if every is None else every}
+    if progress is not None:
+        out["progress"] = progress
+    head = {"scene": scene, "domain": domain, "run": {"end_time": end, **(run or {})},
+            "output": {**out, **(output or {})}}
+    if g is not None:
+        head["gravity"] = {"g": g}
+    return toml_text(**head, **tables)
+
+
+def water(viscosity=1.0e-6, density=1000.0):
+    """A Newtonian water material."""
+    return {"model": "newtonian", "density": density, "viscosity": viscosity}
+
+
+def hencky(density, young_modulus, poisson_ratio=0.3, **keys):
+    """An elastic (Hencky) material."""
+    return {"model": "hencky", "density": density, "young_modulus": young_modulus,
+            "poisson_ratio": poisson_ratio, **keys}
+
+
+def box(name, material, lo, hi, **keys):
+    """A box body (``velocity`` and the like in ``keys``)."""
+    return {"name": name, "material": material, "shape": "box", "lo": lo, "hi": hi, **keys}
+
+
+def wall(name, lo, hi, shape="box", **keys):
+    """A box wall (or another ``shape`` with ``lo`` and ``hi``)."""
+    return {"name": name, "shape": shape, "lo": lo, "hi": hi, **keys}
+
+
+def tank(name, lo, hi, sides=("left", "right", "bottom"), **keys):
+    """A tank wall with the given ``sides``."""
+    return wall(name, lo, hi, "tank", sides=list(sides), **keys)
+
+
+def held(lo, hi, name="hold"):
+    """A constraint holding the particles in [lo, hi] at rest."""
+    return {"name": name, "lo": lo, "hi": hi, "velocity": [0.0] * len(lo)}
+
+
+def initial(name, profile, lo, hi, **keys):
+    """An initial-velocity constraint (``rigid_rotation``: ``centre``, ``omega``;
+    ``uniform``: ``velocity``)."""
+    return {"name": name, "kind": "initial", "profile": profile, "lo": lo, "hi": hi, **keys}
+
+
+def water_around(block_lo, block_hi, water_lo, water_hi,
+                 names=("w_left", "w_right", "w_below", "w_above", "block")):
+    """Box bodies of ``water`` filling [water_lo, water_hi] around a 2D ``block`` body at
+    [block_lo, block_hi]: left, right, below and (when the block's top is below the
+    water's) above it, then the block."""
+    (x0, y0), (x1, y1), (bx0, by0), (bx1, by1) = water_lo, water_hi, block_lo, block_hi
+    bodies = [box(names[0], "water", [x0, y0], [bx0, y1]),
+              box(names[1], "water", [bx1, y0], [x1, y1]),
+              box(names[2], "water", [bx0, y0], [bx1, by0])]
+    if by1 < y1:
+        bodies.append(box(names[3], "water", [bx0, by1], [bx1, y1]))
+    return bodies + [box(names[4], "block", block_lo, block_hi)]
+
 
 def write(tmpdir, text, name="scene.toml"):
     import os
@@ -95,6 +211,30 @@ def write(tmpdir, text, name="scene.toml"):
     with open(path, "w") as fh:
         fh.write(text)
     return path
+
+
+def write_shared(comm, tmpdir, text, name="scene.toml"):
+    """Write ``text`` to ``tmpdir/name`` and return its path on every rank: rank 0 writes
+    (the ranks of ``comm`` share ``tmpdir``); with ``comm`` None this process writes."""
+    if comm is None:
+        return write(tmpdir, text, name)
+    return comm.bcast(write(tmpdir, text, name) if comm.rank == 0 else None)
+
+
+def load_shared(comm, tmpdir, text, overrides=(), name="scene.toml"):
+    """:func:`write_shared`, then load the scene with ``overrides`` on every rank."""
+    from parsph.scene.loader import load_scene
+
+    return load_scene(write_shared(comm, tmpdir, text, name), list(overrides))
+
+
+def stats_rows(out):
+    """The rows of a run directory's stats.csv (dicts of strings)."""
+    import csv
+    import os
+
+    with open(os.path.join(out, "stats.csv")) as fh:
+        return list(csv.DictReader(fh))
 
 
 def by_id(frame):
@@ -114,6 +254,16 @@ def last_frame(out):
     return by_id(read_frame(os.path.join(out, "particles.h5"), "last"))
 
 
+def first_and_last(out):
+    """The first and last frames of a run directory, ordered by global id."""
+    import os
+
+    from parsph.io import read_frame
+
+    h5 = os.path.join(out, "particles.h5")
+    return by_id(read_frame(h5, 0)), by_id(read_frame(h5, "last"))
+
+
 def run_on_one_and_two(comm, scene, tmpdir):
     """The keystone comparison: run ``scene`` on rank 0 alone, then on all ranks.
 
@@ -124,8 +274,8 @@ def run_on_one_and_two(comm, scene, tmpdir):
 
     from mpi4py import MPI
 
-    from parsph.pipeline import plan, uses_petsc
-    from parsph.run import run
+    from parsph.step.pipeline import plan, uses_petsc
+    from parsph.step.run import run
 
     if uses_petsc(plan(scene)):  # PetscInitialize is collective on the world: all ranks now
         import solvers
@@ -153,53 +303,20 @@ def assert_agree_by_id(one, two, x_tol=1e-6, v_tol=1e-4):
     return a, b
 
 
-LONE_ROW = """
-[scene]
-name = "lone_row"
-description = "a row of five Bingham particles sliding on a floor at 1 m/s, all on the free surface"
-
-[domain]
-dim = 2
-particle_size = 0.05
-lo = [-0.5, -0.3]
-hi = [3.0, 1.0]
-
-[run]
-end_time = 0.6
-
-[output]
-every = 0.05
-progress = false
-
-[gravity]
-g = [0.0, -9.81]
-
-[materials.debris]            # slope_failure's debris (Table 2)
-model = "bingham"
-density = 1655.0
-viscosity = 1.0e-3
-viscosity_max = 1.0e4
-cohesion = 10.0
-friction_angle = 19.5
-
-[[bodies]]
-name = "row"
-material = "debris"
-shape = "box"
-lo = [0.0, 0.0]
-hi = [0.25, 0.05]
-velocity = [1.0, 0.0]
-
-[[walls]]
-name = "floor"
-shape = "box"
-lo = [-0.5, -0.15]
-hi = [3.0, 0.0]
-"""
+#: A row of five Bingham particles sliding on a floor at 1 m/s, all on the free surface.
+LONE_ROW = scene_text(
+    "lone_row", 0.05, [-0.5, -0.3], [3.0, 1.0], 0.6, 0.05, g=G_2D,
+    description="a row of five Bingham particles sliding on a floor at 1 m/s, all on the "
+                "free surface",
+    materials={"debris": {  # slope_failure's debris (Table 2)
+        "model": "bingham", "density": 1655.0, "viscosity": 1.0e-3, "viscosity_max": 1.0e4,
+        "cohesion": 10.0, "friction_angle": 19.5}},
+    bodies=[box("row", "debris", [0.0, 0.0], [0.25, 0.05], velocity=[1.0, 0.0])],
+    walls=[wall("floor", [-0.5, -0.15], [3.0, 0.0])])
 
 
 def dense_system(kernel, *args, n_points, dim=1, capacity=None):
-    """Run a CSR kernel of ``parsph.fluid.assembly`` (``viscous_csr``, ``ppe_csr``) on
+    """Run a CSR kernel (``parsph.fluid.viscous.viscous_csr``, ``parsph.fluid.ppe.ppe_csr``) on
     rows numbered from 0 and return its matrix dense, with the right-hand side; checks
     on the way that every row's columns are sorted and distinct and, given
     ``capacity`` (``assembly.csr_capacity``), that the kernel wrote nothing past it."""

@@ -31,9 +31,9 @@ def test_splishsplash_fluid_block_matches_the_parsph_column(comm, tmp_path):
     import numpy as np
 
     from bench_splishsplash import A, block_axes, column_divisions, fluid_block, parsph_scene
-    from parsph.geometry import generate
-    from parsph.materials import PHASE_FLUID
-    from parsph.scene import load_scene
+    from parsph.scene.geometry import generate
+    from parsph.scene.materials import PHASE_FLUID
+    from parsph.scene.loader import load_scene
     from tests.scenes import gather_particles, write
 
     assert column_divisions(24000) == 23 and column_divisions(spacing=A / 37) == 37
@@ -62,9 +62,9 @@ def test_memory_tank_has_about_the_particles_asked_for(tmp_path, target):
     rounding of d to a whole number of particles across 0.1 m), both phases in it."""
     from bench_memory import scene
 
-    from parsph.geometry import estimate_count
-    from parsph.pipeline import plan
-    from parsph.scene import load_scene
+    from parsph.scene.geometry import estimate_count
+    from parsph.step.pipeline import plan
+    from parsph.scene.loader import load_scene
 
     text, d = scene(target)
     path = tmp_path / "tank.toml"

@@ -105,7 +105,7 @@ BAD_INPUT = [
 def test_petsc_options_are_split_off_before_argparse():
     """``-visc_...`` is no ``-v``, and an option's value is no scene (PETSc's reading:
     the next argument unless it starts with a dash and is no number)."""
-    from parsph.cli import split_petsc_options
+    from parsph.cli.main import split_petsc_options
 
     ours, petsc = split_petsc_options(
         ["run", "-visc_ksp_monitor", "-ppe_ksp_rtol", "1e-10", "-v", "--set", "a.b=-1",

@@ -16,7 +16,7 @@ from scipy.optimize import brentq
 from parsph.solid import cam_clay as mcc
 from parsph.solid import drucker_prager as dp
 from parsph.solid import hencky
-from parsph import tensor
+from parsph.core import tensor
 
 RNG_SEED = 20240601
 

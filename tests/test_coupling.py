@@ -1,202 +1,49 @@
 """Solid-fluid coupling (paper section 5) and phase change (section 3.3), on 1 and 2 ranks."""
-import csv
 import os
 
 import numpy as np
 import pytest
 
-from parsph.coupling import pressure
-from parsph.fluid import assembly
-from parsph.kernel import fac_grad, smoothing_length
-from parsph.run import run
-from parsph.scene import load_scene
-from tests.scenes import (assert_agree_by_id, dense_system, last_frame, run_on_one_and_two,
-                          write)
+from parsph.fluid import response as pressure
+from parsph.fluid import assembly, viscous
+from parsph.core.kernel import fac_grad, smoothing_length
+from parsph.step.run import run
+from parsph.scene.loader import load_scene
+from tests.scenes import (G_2D, assert_agree_by_id, box, dense_system, first_and_last, held,
+                          hencky, last_frame, load_shared, run_on_one_and_two, scene_text,
+                          stats_rows, tank, wall, water, water_around)
 
 RHO_W, G = 1000.0, 9.81
 
 #: A stiff block held fixed in the middle of a water tank (water in four boxes around it).
-BLOCK_IN_WATER = """
-[scene]
-name = "block_in_water"
-[domain]
-dim = 2
-particle_size = 0.025
-lo = [-0.2, -0.2]
-hi = [1.2, 1.3]
-[run]
-end_time = 0.3
-[output]
-every = 0.1
-progress = false
-[gravity]
-g = [0.0, -9.81]
-[materials.water]
-model = "newtonian"
-density = 1000.0
-viscosity = 1.0e-6
-[materials.block]
-model = "hencky"
-density = 2000.0
-young_modulus = 1.0e6
-poisson_ratio = 0.3
-[[bodies]]
-name = "w_left"
-material = "water"
-shape = "box"
-lo = [0.0, 0.0]
-hi = [0.4, 0.8]
-[[bodies]]
-name = "w_right"
-material = "water"
-shape = "box"
-lo = [0.6, 0.0]
-hi = [1.0, 0.8]
-[[bodies]]
-name = "w_below"
-material = "water"
-shape = "box"
-lo = [0.4, 0.0]
-hi = [0.6, 0.3]
-[[bodies]]
-name = "w_above"
-material = "water"
-shape = "box"
-lo = [0.4, 0.5]
-hi = [0.6, 0.8]
-[[bodies]]
-name = "block"
-material = "block"
-shape = "box"
-lo = [0.4, 0.3]
-hi = [0.6, 0.5]
-[[constraints]]
-name = "hold"
-lo = [0.39, 0.29]
-hi = [0.61, 0.51]
-velocity = [0.0, 0.0]
-[[walls]]
-name = "tank"
-shape = "tank"
-lo = [0.0, 0.0]
-hi = [1.0, 1.2]
-sides = ["left", "right", "bottom"]
-"""
+BLOCK_IN_WATER = scene_text(
+    "block_in_water", 0.025, [-0.2, -0.2], [1.2, 1.3], 0.3, 0.1, g=G_2D,
+    materials={"water": water(), "block": hencky(2000.0, 1.0e6)},
+    bodies=water_around([0.4, 0.3], [0.6, 0.5], [0.0, 0.0], [1.0, 0.8]),
+    constraints=[held([0.39, 0.29], [0.61, 0.51])], walls=[tank("tank", [0.0, 0.0], [1.0, 1.2])])
 
 #: A dam break whose floor is a held TLSPH plate (no wall below it).
-WATER_ON_PLATE = """
-[scene]
-name = "water_on_plate"
-[domain]
-dim = 2
-particle_size = 0.02
-lo = [-0.4, -0.3]
-hi = [1.4, 1.6]
-[run]
-end_time = 0.5
-[output]
-every = 0.1
-progress = false
-[gravity]
-g = [0.0, -9.81]
-[materials.water]
-model = "newtonian"
-density = 1000.0
-viscosity = 1.0e-6
-[materials.plate]
-model = "hencky"
-density = 2000.0
-young_modulus = 5.0e6
-poisson_ratio = 0.3
-[[bodies]]
-name = "water"
-material = "water"
-shape = "box"
-lo = [-0.1, 0.0]
-hi = [0.2, 0.4]
-[[bodies]]
-name = "plate"
-material = "plate"
-shape = "box"
-lo = [-0.2, -0.1]
-hi = [1.2, 0.0]
-[[constraints]]
-name = "hold"
-lo = [-0.3, -0.2]
-hi = [1.3, 0.01]
-velocity = [0.0, 0.0]
-[[walls]]
-name = "sides"
-shape = "tank"
-lo = [-0.1, 0.0]
-hi = [1.1, 1.4]               # the run-up at the far wall passes 0.8 m
-sides = ["left", "right"]
-"""
+WATER_ON_PLATE = scene_text(
+    "water_on_plate", 0.02, [-0.4, -0.3], [1.4, 1.6], 0.5, 0.1, g=G_2D,
+    materials={"water": water(), "plate": hencky(2000.0, 5.0e6)},
+    bodies=[box("water", "water", [-0.1, 0.0], [0.2, 0.4]),
+            box("plate", "plate", [-0.2, -0.1], [1.2, 0.0])],
+    constraints=[held([-0.3, -0.2], [1.3, 0.01])],
+    # the run-up at the far wall passes 0.8 m
+    walls=[tank("sides", [-0.1, 0.0], [1.1, 1.4], ["left", "right"])])
 
 #: A cohesionless column that yields at once: a low phase-change limit fluidises much of
 #: it within a few hundred steps (for the rank comparisons and the all-at-once test).
-QUICK_COLLAPSE = """
-[scene]
-name = "quick_collapse"
-[domain]
-dim = 2
-particle_size = 0.01
-lo = [-0.05, -0.05]
-hi = [0.65, 0.3]
-[run]
-end_time = 0.05
-[output]
-every = 0.025
-progress = false
-front_direction = [1.0, 0.0]
-[gravity]
-g = [0.0, -9.81]
-[solid]
-wall_friction = 0.36
-[phase_change]
-eps_p_limit = 0.02
-fluid = "debris"
-[materials.soil]
-model = "drucker_prager"
-density = 2000.0
-young_modulus = 1.0e6
-poisson_ratio = 0.3
-friction_angle = 20.0
-cohesion = 0.0
-[materials.debris]
-model = "bingham"
-density = 2000.0
-viscosity = 1.0e-3
-viscosity_max = 1.0e3
-cohesion = 0.0
-friction_angle = 20.0
-[[bodies]]
-name = "column"
-material = "soil"
-shape = "box"
-lo = [0.0, 0.0]
-hi = [0.2, 0.2]
-[[walls]]
-name = "box"
-shape = "tank"
-lo = [0.0, 0.0]
-hi = [0.6, 0.25]
-sides = ["left", "bottom"]
-"""
-
-
-def _scene(tmp, text, overrides=(), name="scene.toml", comm=None):
-    """Write the scene on rank 0 only (ranks share ``tmp``), then load it everywhere."""
-    from decomposition import world
-
-    comm = comm or world()
-    path = comm.bcast(write(tmp, text, name) if comm.rank == 0 else None)
-    return load_scene(path, list(overrides))
-
-
-def _stats(out):
-    with open(os.path.join(out, "stats.csv")) as fh:
-        return list(csv.DictReader(fh))
+QUICK_COLLAPSE = scene_text(
+    "quick_collapse", 0.01, [-0.05, -0.05], [0.65, 0.3], 0.05, 0.025, g=G_2D,
+    output={"front_direction": [1.0, 0.0]}, solid={"wall_friction": 0.36},
+    phase_change={"eps_p_limit": 0.02, "fluid": "debris"},
+    materials={"soil": {"model": "drucker_prager", "density": 2000.0, "young_modulus": 1.0e6,
+                        "poisson_ratio": 0.3, "friction_angle": 20.0, "cohesion": 0.0},
+               "debris": {"model": "bingham", "density": 2000.0, "viscosity": 1.0e-3,
+                          "viscosity_max": 1.0e3, "cohesion": 0.0, "friction_angle": 20.0}},
+    bodies=[box("column", "soil", [0.0, 0.0], [0.2, 0.2])],
+    walls=[tank("box", [0.0, 0.0], [0.6, 0.25], ["left", "bottom"])])
 
 
 # ------------------------------------------------------------------ coupling kernels
@@ -248,7 +95,7 @@ def test_viscous_exchange_between_phases_conserves_momentum():
     slip = np.zeros(4, dtype=np.uint8)
     row = np.arange(4, dtype=np.int64)
     dt, g = 1e-2, np.array([0.0, -9.81])
-    A, rhs = dense_system(assembly.viscous_csr, x, v, m, rho, nu, fluid, scale, slip, row,
+    A, rhs = dense_system(viscous.viscous_csr, x, v, m, rho, nu, fluid, scale, slip, row,
                           indptr, indices, h, 2, dt, g, False, n_points=4, dim=2,
                           capacity=assembly.csr_capacity(fluid, scale, row, indptr, 2, True))
     assert rhs[2] == pytest.approx(v[2])  # solid: its predictor (eq. 7), no extra dt g
@@ -273,11 +120,12 @@ def test_block_in_water_feels_its_buoyancy(comm, mpi_tmp_path):
     rho_w g V upward (Archimedes), within 2 % in every window of 0.3-0.5 s up to 2 s. With
     the partitioned coupling (the block's rows extrapolating the water's pressure) it
     drifted upward by 16 % over 2 s (docs/coupling.md)."""
-    scene = _scene(mpi_tmp_path, BLOCK_IN_WATER, ["run.end_time=2.0", "output.every=0.5"])
+    scene = load_shared(comm, mpi_tmp_path, BLOCK_IN_WATER,
+                        ["run.end_time=2.0", "output.every=0.5"])
     out = os.path.join(mpi_tmp_path, "out")
     run(scene, out, comm=comm, progress=False)
     if comm.rank == 0:
-        rows = [r for r in _stats(out) if float(r["time"]) >= 0.05]
+        rows = [r for r in stats_rows(out) if float(r["time"]) >= 0.05]
         t = np.array([float(r["time"]) for r in rows])
         fy = np.array([float(r["fsi_force_y"]) for r in rows])
         fx = np.array([float(r["fsi_force_x"]) for r in rows])
@@ -297,7 +145,7 @@ def test_block_in_water_feels_its_buoyancy(comm, mpi_tmp_path):
 def test_fluid_does_not_pass_through_a_tlsph_floor(comm, mpi_tmp_path):
     """A water column collapses along a held TLSPH plate that is its only floor and hits
     the far wall: no fluid particle gets into or below the plate."""
-    scene = _scene(mpi_tmp_path, WATER_ON_PLATE)
+    scene = load_shared(comm, mpi_tmp_path, WATER_ON_PLATE)
     out = os.path.join(mpi_tmp_path, "out")
     run(scene, out, comm=comm, progress=False)
     if comm.rank == 0:
@@ -316,9 +164,10 @@ def test_phase_change_of_every_particle_at_once(comm, mpi_tmp_path):
     """Every solid particle fluidises in one step (and, on 2 ranks, most move to another
     owner): ids, mass and momentum conserved, the run continues as a fluid."""
     from decomposition.reduce import gather_to_root, global_sum
-    from parsph.run import _build, refresh
+    from parsph.step.refresh import refresh
+    from parsph.step.run import _build
 
-    scene = _scene(mpi_tmp_path, QUICK_COLLAPSE, ["phase_change.eps_p_limit=1.0"])
+    scene = load_shared(comm, mpi_tmp_path, QUICK_COLLAPSE, ["phase_change.eps_p_limit=1.0"])
     ctx, specs, stages, _ = _build(scene, os.path.join(mpi_tmp_path, "out"), comm, (), None)
     (stage,) = stages
     dt = min(s.max_dt(ctx) for s in stages)
@@ -372,10 +221,11 @@ def test_a_solid_particle_whose_f_would_invert_fluidises(comm, mpi_tmp_path, flu
     without, the step stops with the inversion error on every rank (docs/coupling.md)."""
     from decomposition.reduce import global_min, global_sum
     from parsph.errors import NumericalError
-    from parsph.run import _build, refresh
+    from parsph.step.refresh import refresh
+    from parsph.step.run import _build
 
-    scene = _scene(mpi_tmp_path, QUICK_COLLAPSE,
-                   [f"phase_change.fluidise_failed={str(fluidise).lower()}"])
+    scene = load_shared(comm, mpi_tmp_path, QUICK_COLLAPSE,
+                        [f"phase_change.fluidise_failed={str(fluidise).lower()}"])
     ctx, specs, stages, _ = _build(scene, os.path.join(mpi_tmp_path, "out"), comm, (), None)
     (stage,) = stages
     p, n = ctx.particles, ctx.n_owned
@@ -416,9 +266,10 @@ def test_phase_change_at_a_rank_boundary(comm, mpi_tmp_path):
     other rank drops it from its lists and recomputes its neighbours' correction
     matrices, the particle moves to its new owner, mass and ids are conserved."""
     from decomposition.reduce import allgather, global_sum
-    from parsph.run import _build, refresh
+    from parsph.step.refresh import refresh
+    from parsph.step.run import _build
 
-    scene = _scene(mpi_tmp_path, QUICK_COLLAPSE, ["phase_change.eps_p_limit=10.0"])
+    scene = load_shared(comm, mpi_tmp_path, QUICK_COLLAPSE, ["phase_change.eps_p_limit=10.0"])
     ctx, specs, stages, _ = _build(scene, os.path.join(mpi_tmp_path, "out"), comm, (), None)
     (stage,) = stages
     view = stage.view
@@ -476,7 +327,7 @@ def test_slope_failure_3d_at_a_small_size(comm, mpi_tmp_path):
     if comm.rank == 0:
         assert_agree_by_id(one, two)
         for out in (one, two):
-            rows = _stats(out)
+            rows = stats_rows(out)
             assert float(rows[-1]["n_fluidised"]) > 0
             assert max(float(r["energy_ratio"]) for r in rows) <= 1.0
 
@@ -484,12 +335,12 @@ def test_slope_failure_3d_at_a_small_size(comm, mpi_tmp_path):
 @pytest.mark.mpi(min_size=2)
 def test_phase_change_one_vs_two_ranks(comm, mpi_tmp_path):
     """Through phase changes (and fluid solves), 1 and 2 ranks agree by global id."""
-    scene = _scene(mpi_tmp_path, QUICK_COLLAPSE)
+    scene = load_shared(comm, mpi_tmp_path, QUICK_COLLAPSE)
     one, two = run_on_one_and_two(comm, scene, mpi_tmp_path)
     if comm.rank == 0:
         a, _ = assert_agree_by_id(one, two)
         assert (a["phase"] == 1).sum() > 20  # phase changes happened
-        sa, sb = _stats(one), _stats(two)
+        sa, sb = stats_rows(one), stats_rows(two)
         assert sa[-1]["n_fluidised"] == sb[-1]["n_fluidised"]
 
 
@@ -499,7 +350,7 @@ def _slope(comm, tmp, d, end=3.0):
                                          "output.progress=false"])
     out = os.path.join(tmp, f"slope_{d}")
     run(scene, out, comm=comm, progress=False)
-    return _stats(out) if comm.rank == 0 else None
+    return stats_rows(out) if comm.rank == 0 else None
 
 
 def _slope_checks(rows, d):
@@ -548,10 +399,10 @@ def test_slope_failure_fluidises_and_runs_out_further(comm, mpi_tmp_path):
                 assert hi <= tolerance * mean + 1, (kind, r["time"], lo, hi)
         # the TLSPH-only slope has stopped by 0.7 s; the fluidised slide runs out on the
         # floor (1.23 m at 3 s, the slide under way by 0.7 s at 0.29 m)
-        assert float(_stats(out)[-1]["front"]) < 0.2
-        assert float(rows[-1]["front"]) > float(_stats(out)[-1]["front"]) + 0.5
+        assert float(stats_rows(out)[-1]["front"]) < 0.2
+        assert float(rows[-1]["front"]) > float(stats_rows(out)[-1]["front"]) + 0.5
         at = [r for r in rows if float(r["time"]) <= 0.7 + 1e-9][-1]
-        assert float(at["front"]) > float(_stats(out)[-1]["front"]) + 0.1
+        assert float(at["front"]) > float(stats_rows(out)[-1]["front"]) + 0.1
 
 
 
@@ -563,19 +414,14 @@ def test_periodic_coupled_scene_equals_its_closed_twin(comm, mpi_tmp_path):
     water over an elastic bed with a sinking block, periodic in x, against three periods
     in a closed tank: in the middle period every particle is where its twin is (0.06 s,
     the block at 0.2 m/s; measured 1.4e-5 m, velocities within 0.6 %)."""
-    from parsph.io import read_frame
-
     frames = {}
     for name, copies, periodic in (("periodic", 1, True), ("twin", 3, False)):
-        path = write(mpi_tmp_path, _periodic_scene(copies, periodic, 0.06), f"{name}.toml") \
-            if comm.rank == 0 else None
+        scene = load_shared(comm, mpi_tmp_path, _periodic_scene(copies, periodic, 0.06),
+                            name=f"{name}.toml")
         out = os.path.join(mpi_tmp_path, name)
-        run(load_scene(comm.bcast(path)), out, comm=comm, progress=False)
+        run(scene, out, comm=comm, progress=False)
         if comm.rank == 0:
-            h5 = os.path.join(out, "particles.h5")
-            first, last = read_frame(h5, 0), read_frame(h5, "last")
-            a, b = np.argsort(first["id"]), np.argsort(last["id"])
-            frames[name] = ({k: v[a] for k, v in first.items()}, {k: v[b] for k, v in last.items()})
+            frames[name] = first_and_last(out)
     if comm.rank != 0:
         return
     (p0, p1), (t0, t1) = frames["periodic"], frames["twin"]
@@ -610,7 +456,7 @@ def test_partitions_follow_the_failing_toe(comm, mpi_tmp_path):
     run(load_scene("slope_failure", sets + ["run.end_time=1.2"]), first, comm=comm,
         progress=False, restart=os.path.join(first, "checkpoint.h5"))
     if comm.rank == 0:
-        rows = _stats(whole)
+        rows = stats_rows(whole)
         highs = []
         for r in rows:
             mean = float(r["n_solid"]) / comm.size
@@ -666,88 +512,16 @@ def _periodic_scene(copies, periodic, end):
     lo = 0.0 if periodic else -L * (copies // 2)
     hi = lo + L * copies
     pad = 0.0 if periodic else 0.1
-    parts = [f"""
-[scene]
-name = "{'periodic' if periodic else 'twin'}"
-[domain]
-dim = 2
-particle_size = 0.01
-lo = [{lo - pad}, -0.1]
-hi = [{hi + pad}, 0.3]
-periodic = [{'true' if periodic else 'false'}, false]
-[run]
-end_time = {end}
-[output]
-every = {end}
-progress = false
-[gravity]
-g = [0.0, -9.81]
-[solid]
-max_substeps = 16
-[materials.water]
-model = "newtonian"
-density = 1000.0
-viscosity = 1.0e-6
-[materials.bed]
-model = "hencky"
-density = 2000.0
-young_modulus = 1.0e6
-poisson_ratio = 0.3
-[materials.block]
-model = "hencky"
-density = 2000.0
-young_modulus = 1.0e6
-poisson_ratio = 0.3
-"""]
+    bodies = []
     for k in range(copies):
         x0 = lo + k * L
-        parts.append(f"""
-[[bodies]]
-name = "bed{k}"
-material = "bed"
-shape = "box"
-lo = [{x0}, 0.0]
-hi = [{x0 + L}, 0.04]
-[[bodies]]
-name = "wl{k}"
-material = "water"
-shape = "box"
-lo = [{x0}, 0.04]
-hi = [{x0 + 0.13}, 0.14]
-[[bodies]]
-name = "wr{k}"
-material = "water"
-shape = "box"
-lo = [{x0 + 0.17}, 0.04]
-hi = [{x0 + L}, 0.14]
-[[bodies]]
-name = "wb{k}"
-material = "water"
-shape = "box"
-lo = [{x0 + 0.13}, 0.04]
-hi = [{x0 + 0.17}, 0.10]
-[[bodies]]
-name = "block{k}"
-material = "block"
-shape = "box"
-lo = [{x0 + 0.13}, 0.10]
-hi = [{x0 + 0.17}, 0.14]
-""")
-    if periodic:
-        parts.append(f"""
-[[walls]]
-name = "floor"
-shape = "box"
-lo = [{lo}, -0.03]
-hi = [{hi}, 0.0]
-""")
-    else:
-        parts.append(f"""
-[[walls]]
-name = "tank"
-shape = "tank"
-lo = [{lo}, 0.0]
-hi = [{hi}, 0.25]
-sides = ["left", "right", "bottom"]
-""")
-    return "".join(parts)
+        bodies += [box(f"bed{k}", "bed", [x0, 0.0], [x0 + L, 0.04])] + water_around(
+            [x0 + 0.13, 0.10], [x0 + 0.17, 0.14], [x0, 0.04], [x0 + L, 0.14],
+            names=(f"wl{k}", f"wr{k}", f"wb{k}", f"wa{k}", f"block{k}"))
+    walls = [wall("floor", [lo, -0.03], [hi, 0.0])] if periodic \
+        else [tank("tank", [lo, 0.0], [hi, 0.25])]
+    return scene_text(
+        "periodic" if periodic else "twin", 0.01, [lo - pad, -0.1], [hi + pad, 0.3], end,
+        g=G_2D, periodic=[periodic, False], solid={"max_substeps": 16},
+        materials={"water": water(), "bed": hencky(2000.0, 1.0e6),
+                   "block": hencky(2000.0, 1.0e6)}, bodies=bodies, walls=walls)

@@ -1,6 +1,5 @@
 """IISPH stability: a Bingham fluid with nu_fMAX = 1e4 m^2/s at the CFL step, long runs,
 two resolutions of the dam break, no leak through the walls."""
-import csv
 import math
 import os
 
@@ -8,9 +7,9 @@ import numpy as np
 import pytest
 
 from parsph.io import read_frame, read_frames
-from parsph.run import run
-from parsph.scene import load_scene
-from tests.scenes import LONE_ROW, write
+from parsph.step.run import run
+from parsph.scene.loader import load_scene
+from tests.scenes import LONE_ROW, load_shared, stats_rows
 from tests.test_iisph import front_positions
 
 
@@ -19,11 +18,6 @@ def _run(comm, tmp, name, overrides, sub="out"):
     out = os.path.join(tmp, sub)
     run(scene, out, comm=comm, progress=False)
     return scene, out
-
-
-def _stats(out):
-    with open(os.path.join(out, "stats.csv")) as fh:
-        return list(csv.DictReader(fh))
 
 
 def _frames(out):
@@ -52,7 +46,7 @@ def test_bingham_slump_comes_to_rest_at_the_cfl_step(comm, mpi_tmp_path):
 
 def _slump_checks(scene, out):
     """What the slump must show at 2 s (rank 0); returns its fastest fluid speed."""
-    rows = _stats(out)
+    rows = stats_rows(out)
     d = scene.domain.particle_size
     dts = np.array([float(r["dt"]) for r in rows])
     assert np.median(dts) > 1e4 * d * d / scene.materials["soil"].viscosity_max
@@ -79,7 +73,7 @@ def test_long_hydrostatic_run_stays_at_rest(comm, mpi_tmp_path):
         scale = math.sqrt(9.81 * 1.0)
         frames = list(_frames(out))
         # the run stops at the first sync step at or after run.end_time
-        dt = max(float(r["dt"]) for r in _stats(out))
+        dt = max(float(r["dt"]) for r in stats_rows(out))
         reuse = scene.fluid.preconditioner_reuse
         assert 20.0 <= frames[-1][0] <= 20.0 + reuse * dt * (1 + 1e-9)
         for _, f in frames:
@@ -92,9 +86,9 @@ def test_long_hydrostatic_run_stays_at_rest(comm, mpi_tmp_path):
 
 
 def _lone_row(comm, tmp, contact, sub):
-    path = comm.bcast(write(tmp, LONE_ROW, "lone_row.toml") if comm.rank == 0 else None)
-    scene = load_scene(path, [f"fluid.surface_wall_contact={str(contact).lower()}",
-                              "run.end_time=0.6" if contact else "run.end_time=0.4"])
+    overrides = [f"fluid.surface_wall_contact={str(contact).lower()}",
+                 "run.end_time=0.6" if contact else "run.end_time=0.4"]
+    scene = load_shared(comm, tmp, LONE_ROW, overrides, "lone_row.toml")
     out = os.path.join(tmp, sub)
     run(scene, out, comm=comm, progress=False)
     return scene, list(_frames(out)) if comm.rank == 0 else None

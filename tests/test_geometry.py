@@ -4,9 +4,9 @@ import pytest
 from mpi4py import MPI
 
 from decomposition.reduce import global_sum
-from parsph.geometry import estimate_count, generate, wall_layers
-from parsph.materials import PHASE_WALL
-from parsph.scene import load_scene
+from parsph.scene.geometry import estimate_count, generate, wall_layers
+from parsph.scene.materials import PHASE_WALL
+from parsph.scene.loader import load_scene
 from tests.scenes import MOVING_2D, MOVING_3D, gather_particles, write
 
 
@@ -110,7 +110,7 @@ def test_estimate_count_is_the_generated_count(comm, name):
 
 def test_estimate_count_samples_large_filtered_lattices(comm, monkeypatch):
     """Above _COUNT_EXACT candidates a polygon is sampled: an upper bound within 2 %."""
-    import parsph.geometry as geometry
+    import parsph.scene.geometry as geometry
 
     scn = load_scene("slope_failure")
     n = global_sum(comm, len(generate(comm, scn)["id"]))

@@ -7,10 +7,10 @@ import tifffile
 from mpi4py import MPI
 
 from parsph.errors import SceneError
-from parsph.geometry import generate
-from parsph.heightmap import read_grid
-from parsph.materials import PHASE_WALL
-from parsph.scene import load_scene
+from parsph.scene.geometry import generate
+from parsph.scene.heightmap import read_grid
+from parsph.scene.materials import PHASE_WALL
+from parsph.scene.loader import load_scene
 from tests.scenes import MOVING_3D, gather_particles, write
 
 #: GeoKeyDirectory entries (key, location 0, count 1, value) of GeoTIFF 1.1.

@@ -7,13 +7,15 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
-from parsph.fluid import assembly, references, rheology
-from parsph.fluid.references import front_positions  # noqa: F401 (used by the stability tests)
+from parsph.fluid import assembly, ppe, rheology, viscous
+from parsph.verify import fluid as references
+from parsph.verify.fluid import front_positions  # noqa: F401 (used by the stability tests)
 from parsph.io import read_frame, read_frames, read_stats
-from parsph.kernel import fac_grad, smoothing_length, w
-from parsph.run import run
-from parsph.scene import load_scene
-from tests.scenes import by_id, dense_system, last_frame, run_on_one_and_two
+from parsph.core.kernel import fac_grad, smoothing_length, w
+from parsph.step.run import run
+from parsph.scene.loader import load_scene
+from tests.scenes import (box, by_id, dense_system, last_frame, run_on_one_and_two,
+                          scene_text, tank, wall)
 
 
 def _run(comm, tmp, name, overrides, sub="out"):
@@ -50,12 +52,12 @@ def test_ppe_matrix_is_eq35_with_no_penetration_rows():
     dt, alpha = 1e-3, 0.01
     vs = np.zeros((4, 2))
     vs[0] = [0.01, 0.0]  # v* of particle 0 only: divergence source of rows 1 and 3
-    A, rhs = dense_system(assembly.ppe_csr, x, vs, m, rho, rho0, fluid, free, row, indptr,
+    A, rhs = dense_system(ppe.ppe_csr, x, vs, m, rho, rho0, fluid, free, row, indptr,
                           indices, h, 2, dt, alpha, d, False, False, n_points=4,
                           capacity=assembly.csr_capacity(fluid, np.zeros(4), row, indptr, 1,
                                                          False))
     for i in (0, 1):  # fluid rows: -s_i * eq. (35), s_i = rho_i d^2 / (2 rho0_i)
-        s = assembly.ppe_row_scale(rho[i], rho0[i], d)
+        s = ppe.ppe_row_scale(rho[i], rho0[i], d)
         for j in range(4):
             if j == i:
                 continue
@@ -69,7 +71,7 @@ def test_ppe_matrix_is_eq35_with_no_penetration_rows():
         div = sum(m[j] * np.dot(vs[j] - vs[i], x[i] - x[j])
                   * fac_grad(np.linalg.norm(x[i] - x[j]), h, 2) for j in range(4) if j != i)
         source = rho0[i] * div / rho[i] / dt + alpha * min(rho0[i] - rho[i], 0.0) / dt ** 2
-        assert rhs[i] == pytest.approx(-assembly.ppe_row_scale(rho[i], rho0[i], d) * source)
+        assert rhs[i] == pytest.approx(-ppe.ppe_row_scale(rho[i], rho0[i], d) * source)
     assert np.array_equal(A[2], [0, 0, 1, 0]) and rhs[2] == 0.0  # free surface: p = 0
     # wall row: -(d^2/2)(1/rho_w) sum_f m_f F_wf (p_w - p_f) = -(d^2/2) rho0/(rho dt) div_w
     s = 0.5 * d * d
@@ -111,7 +113,7 @@ def test_viscous_predictor_is_eq34(morris):
     g = np.array([0.0, -9.81])
     solid = np.zeros(4)
     cap = assembly.csr_capacity(fluid, solid, row, indptr, dim, not morris)
-    A, rhs = dense_system(assembly.viscous_csr, x, v, m, rho, nu, fluid, solid, slip, row,
+    A, rhs = dense_system(viscous.viscous_csr, x, v, m, rho, nu, fluid, solid, slip, row,
                           indptr, indices, h, dim, dt, g, morris, n_points=4, dim=dim,
                           capacity=cap)
     # apply A to an arbitrary v*: row 0 must be v*_0 - dt * (viscous term (34) at v*)
@@ -165,9 +167,9 @@ def test_csr_kernels_write_the_rows_in_the_stage_numbering():
     vs = np.array([[0.0, 0.0], [0.01, 0.0], [0.0, -0.02], [0.03, 0.0]])
     args = (x, vs, m, rho, rho0, fluid, free)
     tail = (h, 2, dt, 0.01, d, False, False)
-    A0, b0 = dense_system(assembly.ppe_csr, *args, ident, indptr, indices, *tail, n_points=4)
+    A0, b0 = dense_system(ppe.ppe_csr, *args, ident, indptr, indices, *tail, n_points=4)
     sorted_indices = sort_neighbours_by_row(indptr, indices, renumbered)
-    A1, b1 = dense_system(assembly.ppe_csr, *args, renumbered, indptr, sorted_indices, *tail,
+    A1, b1 = dense_system(ppe.ppe_csr, *args, renumbered, indptr, sorted_indices, *tail,
                           n_points=4)
     # the same sums in another neighbour order: equal to round-off
     assert np.allclose(A1[np.ix_(renumbered, renumbered)], A0, rtol=1e-12, atol=0)
@@ -177,9 +179,9 @@ def test_csr_kernels_write_the_rows_in_the_stage_numbering():
     slip = np.zeros(4, dtype=np.uint8)
     vargs = (x, vs, m, rho, nu, fluid, np.zeros(4), slip)
     vtail = (h, 2, 1e-2, g, False)
-    V0, c0 = dense_system(assembly.viscous_csr, *vargs, ident, indptr, indices, *vtail,
+    V0, c0 = dense_system(viscous.viscous_csr, *vargs, ident, indptr, indices, *vtail,
                           n_points=4, dim=2)
-    V1, c1 = dense_system(assembly.viscous_csr, *vargs, renumbered, indptr, sorted_indices,
+    V1, c1 = dense_system(viscous.viscous_csr, *vargs, renumbered, indptr, sorted_indices,
                           *vtail, n_points=4, dim=2)
     scalar = (2 * renumbered[:, None] + np.arange(2)).reshape(-1)
     assert np.allclose(V1[np.ix_(scalar, scalar)], V0, rtol=1e-12, atol=0)
@@ -198,15 +200,15 @@ def test_explicit_viscous_predictor_is_the_implicit_operator_at_v(morris):
     v = np.array([[0.1, 0.0], [0.0, 0.2], [-0.1, 0.05], [0.02, 0.0]])
     slip = np.zeros(4, dtype=np.uint8)
     g = np.array([0.0, -9.81])
-    A, rhs = dense_system(assembly.viscous_csr, x, v, m, rho, nu, fluid, np.zeros(4), slip, row,
+    A, rhs = dense_system(viscous.viscous_csr, x, v, m, rho, nu, fluid, np.zeros(4), slip, row,
                           indptr, indices, h, dim, dt, g, morris, n_points=4, dim=dim)
     ghost = np.zeros((4, dim))
-    assembly.ghost_velocity(x, v, fluid, slip, indptr, indices, h, dim, ghost)
+    viscous.ghost_velocity(x, v, fluid, slip, indptr, indices, h, dim, ghost)
     u = v.copy()
     u[3] = ghost[3]
     Au = (A @ u.reshape(-1)).reshape(4, dim)
     assert Au[3] == pytest.approx(rhs[3], rel=1e-12)  # the wall row holds for the ghost
-    vstar = assembly.viscous_explicit(x, v, ghost, m, rho, nu, fluid, slip, indptr, indices, h,
+    vstar = viscous.viscous_explicit(x, v, ghost, m, rho, nu, fluid, slip, indptr, indices, h,
                                       dim, dt, g, morris)
     for i in (0, 1, 2):
         assert vstar[i] == pytest.approx(rhs[i] + u[i] - Au[i], rel=1e-12, abs=1e-15)
@@ -411,45 +413,17 @@ def test_one_vs_two_ranks_agree_by_id(comm, mpi_tmp_path):
         assert np.abs(a["p"] - b["p"]).max() < 1e-4 * 1000 * 9.81 * 0.292
 
 
-WALLS_2D = """
-[scene]
-name = "walls"
-[domain]
-dim = 2
-particle_size = 0.1
-lo = [-0.5, -0.5]
-hi = [2.5, 1.5]
-[run]
-end_time = 1.0
-[output]
-every = 1.0
-[materials.water]
-model = "newtonian"
-[[bodies]]
-name = "water"
-material = "water"
-shape = "box"
-lo = [0.0, 0.0]
-hi = [1.0, 0.5]
-[[walls]]
-name = "tank"
-shape = "tank"
-lo = [0.0, 0.0]
-hi = [1.0, 1.0]
-sides = ["left", "bottom"]
-slip = "no_slip"
-[[walls]]
-name = "block"
-shape = "box"
-lo = [1.5, 0.0]
-hi = [2.0, 0.5]
-slip = "free_slip"
-"""
+WALLS_2D = scene_text(
+    "walls", 0.1, [-0.5, -0.5], [2.5, 1.5], 1.0, progress=None,
+    materials={"water": {"model": "newtonian"}},
+    bodies=[box("water", "water", [0.0, 0.0], [1.0, 0.5])],
+    walls=[tank("tank", [0.0, 0.0], [1.0, 1.0], ["left", "bottom"], slip="no_slip"),
+           wall("block", [1.5, 0.0], [2.0, 0.5], slip="free_slip")])
 
 
 def test_wall_slip_is_found_per_wall(tmp_path):
     from parsph.fluid.walls import FREE_SLIP, NO_SLIP, wall_slip
-    from parsph.geometry import generate
+    from parsph.scene.geometry import generate
     from tests.scenes import write
 
     scene = load_scene(write(tmp_path, WALLS_2D, "walls.toml"))
@@ -466,7 +440,7 @@ def test_lagged_amg_setup_and_migration_agree_with_fresh_ones(comm, mpi_tmp_path
     """fluid.preconditioner_reuse = 4 (the default) on 2 ranks: an AMG set-up every 4th
     step, particles that cross the cut stay with their rank (within d/2) until the next
     set-up, and the run agrees with one that sets up and migrates every step."""
-    import parsph.run as run_module
+    import parsph.step.refresh as run_module
 
     kept = []
     keep = run_module._keep_strays
@@ -498,3 +472,4 @@ def test_lagged_amg_setup_and_migration_agree_with_fresh_ones(comm, mpi_tmp_path
         a, b = by_id(read_frame(lagged, step)), by_id(read_frame(fresh, step))
         assert np.abs(a["x"] - b["x"]).max() < 1e-6 * 0.0073
         assert np.abs(a["p"] - b["p"]).max() < 1e-4 * 1000 * 9.81 * 0.292
+

@@ -1,4 +1,4 @@
-"""Cubic spline kernel (parsph.kernel): normalisation, lattice consistency, derivatives.
+"""Cubic spline kernel (parsph.core.kernel): normalisation, lattice consistency, derivatives.
 
 Serial unit tests: under ``mpirun -n 2`` every rank runs them independently.
 """
@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from numba import njit
 
-from parsph import kernel as K
+from parsph.core import kernel as K
 
 SETTINGS = settings(max_examples=60, deadline=None, database=None)
 

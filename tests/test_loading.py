@@ -3,9 +3,9 @@ import numpy as np
 import pytest
 
 from parsph.errors import SceneError
-from parsph.loading import G0, read_record
-from parsph.run import Context
-from parsph.scene import load_scene
+from parsph.scene.loading import G0, read_record
+from parsph.core.context import Context
+from parsph.scene.loader import load_scene
 from tests.scenes import MOVING_2D, write
 
 GOOD = "# a test record\ntime (s), a_x (gal), a_y (m/s2)\n0.0, 0, 0\n0.1, 100, 1\n0.3, -100, 3\n"

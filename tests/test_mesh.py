@@ -1,7 +1,7 @@
 """Bodies and walls from triangle meshes (STL binary/ASCII, OBJ), written by the tests."""
 import math
-import os
 import pathlib
+import tomllib
 
 import numpy as np
 import pytest
@@ -10,64 +10,28 @@ from mpi4py import MPI
 
 from decomposition.reduce import global_sum
 from parsph.errors import SceneError
-from parsph.geometry import estimate_count, generate
-from parsph.materials import PHASE_WALL
-from parsph.scene import load_scene
-from tests.scenes import write
+from parsph.scene.geometry import estimate_count, generate
+from parsph.scene.materials import PHASE_WALL
+from parsph.scene.loader import load_scene
+from tests.scenes import hencky, scene_text, toml_text, write, write_shared
 
-SCENE = """
-[scene]
-name = "mesh"
+def _mesh(name, file, extra="", **keys):
+    """A body or wall from the mesh ``file``; ``extra``: more of its keys, as TOML."""
+    return {"name": name, **keys, "shape": "mesh", "file": file, **tomllib.loads(extra)}
 
-[domain]
-dim = 3
-particle_size = {d}
-lo = [-0.5, -0.5, -0.5]
-hi = [1.5, 1.5, 1.5]
 
-[run]
-end_time = 0.1
-mode = "geometry"
-
-[output]
-every = 0.1
-progress = false
-
-[materials.rock]
-model = "kinematic"
-density = 2000.0
-"""
-
-BODY = """
-[[bodies]]
-name = "{name}"
-material = "rock"
-shape = "mesh"
-file = "{file}"
-{extra}
-"""
-
-WALL = """
-[[walls]]
-name = "{name}"
-shape = "mesh"
-file = "{file}"
-{extra}
-"""
+def _text(d, bodies=(), walls=(), dim=3):
+    """A geometry scene of rock bodies and walls from meshes, each a (file, extra) pair."""
+    return scene_text(
+        "mesh", d, [-0.5] * dim, [1.5] * dim, 0.1, run={"mode": "geometry"},
+        materials={"rock": {"model": "kinematic", "density": 2000.0}},
+        bodies=[_mesh(f"b{n}", *body, material="rock") for n, body in enumerate(bodies)],
+        walls=[_mesh(f"w{n}", *wall) for n, wall in enumerate(walls)])
 
 
 def _scene(tmp_path, d=0.05, bodies=(), walls=(), name="scene.toml", comm=None):
     """Write a scene (rank 0 only, when ``comm`` says the directory is shared) and load it."""
-    text = SCENE.format(d=d)
-    for n, (file, extra) in enumerate(bodies):
-        text += BODY.format(name=f"b{n}", file=file, extra=extra)
-    for n, (file, extra) in enumerate(walls):
-        text += WALL.format(name=f"w{n}", file=file, extra=extra)
-    if comm is None or comm.rank == 0:
-        write(str(tmp_path), text, name)
-    if comm is not None:
-        comm.Barrier()
-    return load_scene(os.path.join(str(tmp_path), name))
+    return load_scene(write_shared(comm, str(tmp_path), _text(d, bodies, walls), name))
 
 
 def _export(mesh, path, file_type=None):
@@ -82,9 +46,23 @@ def _gather(comm, fields):
     return {k: np.concatenate([f[k] for f in allf])[order] for k in ("id", "x", "phase", "body")}
 
 
-def _shared(mpi_tmp_path):
-    """The directory all ranks share (fixtures are written there by rank 0)."""
-    return pathlib.Path(mpi_tmp_path)
+def _shared(comm, mpi_tmp_path, meshes):
+    """Rank 0 writes ``meshes`` ({file name: mesh, or (mesh, file type)}) to the directory
+    all ranks share; returns that directory once they are there."""
+    tmp = pathlib.Path(mpi_tmp_path)
+    if comm.rank == 0:
+        for name, mesh in meshes.items():
+            mesh, file_type = mesh if isinstance(mesh, tuple) else (mesh, None)
+            _export(mesh, tmp / name, file_type)
+    comm.Barrier()
+    return tmp
+
+
+def _ball(subdivisions, radius, centre=(0.5, 0.5, 0.5)):
+    """An icosphere of ``radius`` about ``centre``."""
+    ball = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
+    ball.apply_translation(centre)
+    return ball
 
 
 def _unit_cube():
@@ -101,13 +79,7 @@ def test_cube_and_sphere_fill_their_volume(comm, mpi_tmp_path):
     (whole shells of lattice points enter at once). A column with a missed or doubled
     crossing would flip up to 20 points at once, and a fill of the bounding box is 91 %
     too many."""
-    tmp = _shared(mpi_tmp_path)
-    if comm.rank == 0:
-        _export(_unit_cube(), tmp / "cube.stl")
-        ball = trimesh.creation.icosphere(subdivisions=4, radius=0.5)
-        ball.apply_translation((0.5, 0.5, 0.5))
-        _export(ball, tmp / "ball.stl")
-    comm.Barrier()
+    tmp = _shared(comm, mpi_tmp_path, {"cube.stl": _unit_cube(), "ball.stl": _ball(4, 0.5)})
     d = 0.05
     scn = _scene(tmp, d, bodies=[("cube.stl", ""), ("ball.stl", 'translate = [0.0, 0.0, 0.0]')],
                  comm=comm)
@@ -127,15 +99,12 @@ def test_cube_and_sphere_fill_their_volume(comm, mpi_tmp_path):
 def test_stl_binary_ascii_and_obj_give_the_same_particles(comm, mpi_tmp_path):
     """Vertices on a 1/64 m grid are exact in every format (float32 STL, text), so the
     three files describe one surface and must fill the same lattice points."""
-    tmp = _shared(mpi_tmp_path)
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=0.45)
+    ball.vertices = np.round((ball.vertices + 0.5) * 64) / 64
+    tmp = _shared(comm, mpi_tmp_path, {"b.stl": (ball, "stl"), "a.stl": (ball, "stl_ascii"),
+                                       "o.obj": (ball, "obj")})
     if comm.rank == 0:
-        ball = trimesh.creation.icosphere(subdivisions=3, radius=0.45)
-        ball.vertices = np.round((ball.vertices + 0.5) * 64) / 64
-        _export(ball, tmp / "b.stl", "stl")
-        _export(ball, tmp / "a.stl", "stl_ascii")
-        _export(ball, tmp / "o.obj", "obj")
         assert (tmp / "a.stl").read_text().startswith("solid")
-    comm.Barrier()
     runs = []
     for file in ("b.stl", "a.stl", "o.obj"):
         scn = _scene(tmp, 0.05, bodies=[(file, "")], name=f"{file}.toml", comm=comm)
@@ -149,12 +118,9 @@ def test_stl_binary_ascii_and_obj_give_the_same_particles(comm, mpi_tmp_path):
 def test_scale_rotate_translate_place_the_mesh(comm, mpi_tmp_path):
     """A 10 x 20 x 40 mm brick, scale = 0.01 (to 0.1 x 0.2 x 0.4 m), turned 90 degrees
     about z (0.2 x 0.1 x 0.4 m), moved by (0.3, 0.4, 0.5): exactly where it should be."""
-    tmp = _shared(mpi_tmp_path)
-    if comm.rank == 0:
-        brick = trimesh.creation.box(extents=(10.0, 20.0, 40.0))
-        brick.apply_translation((5.0, 10.0, 20.0))
-        _export(brick, tmp / "brick.stl")
-    comm.Barrier()
+    brick = trimesh.creation.box(extents=(10.0, 20.0, 40.0))
+    brick.apply_translation((5.0, 10.0, 20.0))
+    tmp = _shared(comm, mpi_tmp_path, {"brick.stl": brick})
     extra = "scale = 0.01\nrotate = [0.0, 0.0, 90.0]\ntranslate = [0.5, 0.4, 0.5]"
     f = _gather(comm, generate(comm, _scene(tmp, 0.05, bodies=[("brick.stl", extra)], comm=comm)))
     x = f["x"]
@@ -167,10 +133,7 @@ def test_mesh_wall_layers_inside_and_outside(comm, mpi_tmp_path):
     """A cube of 10 d as a wall. inside: the points with an outside point within 3 d:
     the cube less its 4^3 core. outside: the points within 3 d of an inside point: faces
     6 (3 n^2), edges 12 (4 n) (offsets (a, b) >= 1 with a^2 + b^2 <= 9), corners 8 (7)."""
-    tmp = _shared(mpi_tmp_path)
-    if comm.rank == 0:
-        _export(_unit_cube(), tmp / "cube.stl")
-    comm.Barrier()
+    tmp = _shared(comm, mpi_tmp_path, {"cube.stl": _unit_cube()})
     d, n = 0.1, 10
     scn = _scene(tmp, d, walls=[("cube.stl", 'fill = "inside"'),
                                 ("cube.stl", 'fill = "outside"')], comm=comm)
@@ -191,14 +154,9 @@ def test_estimate_samples_large_mesh_lattices(comm, mpi_tmp_path, monkeypatch):
     """Above _MESH_COLUMNS columns the count is sampled: an upper bound, within 25 %
     for a body from 256 of 625 columns (four standard errors: ~15 %; the default 16,384
     columns are 8 times tighter) and within a factor 2 for a wall (16 blocks of columns)."""
-    import parsph.geometry as geometry
+    import parsph.scene.geometry as geometry
 
-    tmp = _shared(mpi_tmp_path)
-    if comm.rank == 0:
-        ball = trimesh.creation.icosphere(subdivisions=3, radius=0.5)
-        ball.apply_translation((0.5, 0.5, 0.5))
-        _export(ball, tmp / "ball.stl")
-    comm.Barrier()
+    tmp = _shared(comm, mpi_tmp_path, {"ball.stl": _ball(3, 0.5)})
     for kind in ("bodies", "walls"):
         scn = _scene(tmp, 0.04, comm=comm, name=f"{kind}.toml", **{kind: [("ball.stl", "")]})
         n = global_sum(comm, len(generate(comm, scn)["id"]))
@@ -238,9 +196,7 @@ def test_open_and_bad_meshes_are_refused(tmp_path):
 
 def test_mesh_in_2d_is_refused(tmp_path):
     _export(_unit_cube(), tmp_path / "cube.stl")
-    text = (SCENE.format(d=0.1).replace("dim = 3", "dim = 2")
-            .replace("[-0.5, -0.5, -0.5]", "[-0.5, -0.5]").replace("[1.5, 1.5, 1.5]", "[1.5, 1.5]")
-            + BODY.format(name="b", file="cube.stl", extra=""))
+    text = _text(0.1, dim=2) + toml_text(bodies=[_mesh("b", "cube.stl", material="rock")])
     with pytest.raises(SceneError, match=r"bodies\[0\].shape.*3D scenes.*polygon"):
         load_scene(write(tmp_path, text))
 
@@ -249,13 +205,7 @@ def test_mesh_in_2d_is_refused(tmp_path):
 def test_mesh_particles_independent_of_rank_count(comm, mpi_tmp_path):
     """A body and both kinds of wall: rank 0 alone and all ranks fill the same points
     with the same ids (each rank tests only its share of the lattice)."""
-    tmp = _shared(mpi_tmp_path)
-    if comm.rank == 0:
-        ball = trimesh.creation.icosphere(subdivisions=3, radius=0.4)
-        ball.apply_translation((0.5, 0.5, 0.5))
-        _export(ball, tmp / "ball.stl")
-        _export(_unit_cube(), tmp / "cube.stl")
-    comm.Barrier()
+    tmp = _shared(comm, mpi_tmp_path, {"ball.stl": _ball(3, 0.4), "cube.stl": _unit_cube()})
     scn = _scene(tmp, 0.05, bodies=[("ball.stl", "")],
                  walls=[("cube.stl", 'fill = "outside"\ntranslate = [0.0, 0.0, 0.0]'),
                         ("ball.stl", 'fill = "inside"\ntranslate = [0.0, 0.0, -0.4]\nlayers = 2')],
@@ -271,51 +221,13 @@ def test_mesh_particles_independent_of_rank_count(comm, mpi_tmp_path):
         one.Free()
 
 
-BOULDER = """
-[scene]
-name = "boulder"
-description = "an elastic boulder from an STL hitting a ramp from an OBJ, both in mm"
-
-[domain]
-dim = 3
-particle_size = 0.03
-lo = [-0.2, -0.2, -0.2]
-hi = [1.2, 0.6, 0.8]
-
-[run]
-end_time = 1.0
-max_steps = 50
-
-[output]
-every = 0.5
-progress = false
-
-[solid]
-hourglass = 1.0
-
-[materials.granite]
-model = "hencky"
-density = 2700.0
-young_modulus = 2.0e6
-poisson_ratio = 0.3
-
-[[bodies]]
-name = "boulder"
-material = "granite"
-shape = "mesh"
-file = "boulder.stl"
-scale = 0.001
-rotate = [0.0, 20.0, 0.0]
-translate = [0.3, 0.2, 0.32]
-velocity = [0.0, 0.0, -2.0]
-
-[[walls]]
-name = "ramp"
-shape = "mesh"
-file = "ramp.obj"
-scale = 0.001
-fill = "inside"
-"""
+BOULDER = scene_text(
+    "boulder", 0.03, [-0.2, -0.2, -0.2], [1.2, 0.6, 0.8], 1.0, 0.5, run={"max_steps": 50},
+    description="an elastic boulder from an STL hitting a ramp from an OBJ, both in mm",
+    solid={"hourglass": 1.0}, materials={"granite": hencky(2700.0, 2.0e6)},
+    bodies=[_mesh("boulder", "boulder.stl", material="granite", scale=0.001,
+                  rotate=[0.0, 20.0, 0.0], translate=[0.3, 0.2, 0.32], velocity=[0.0, 0.0, -2.0])],
+    walls=[_mesh("ramp", "ramp.obj", scale=0.001, fill="inside")])
 
 
 def _ramp_mm():
@@ -334,15 +246,10 @@ def test_user_scene_mesh_boulder_on_mesh_ramp_one_vs_two_ranks(comm, mpi_tmp_pat
     from decomposition.comm import on_root
     from tests.scenes import last_frame, run_on_one_and_two
 
-    tmp = _shared(mpi_tmp_path)
-    if comm.rank == 0:
-        rock = trimesh.creation.icosphere(subdivisions=2, radius=100.0)
-        rock.apply_scale((1.0, 0.8, 0.7))
-        _export(rock, tmp / "boulder.stl")
-        _export(_ramp_mm(), tmp / "ramp.obj")
-        write(str(tmp), BOULDER, "boulder.toml")
-    comm.Barrier()
-    scene = on_root(comm, load_scene, str(tmp / "boulder.toml"))
+    rock = trimesh.creation.icosphere(subdivisions=2, radius=100.0)
+    rock.apply_scale((1.0, 0.8, 0.7))
+    tmp = _shared(comm, mpi_tmp_path, {"boulder.stl": rock, "ramp.obj": _ramp_mm()})
+    scene = on_root(comm, load_scene, write_shared(comm, str(tmp), BOULDER, "boulder.toml"))
     one, two = run_on_one_and_two(comm, scene, str(tmp))
     if comm.rank == 0:
         a, b = last_frame(one), last_frame(two)

@@ -1,4 +1,4 @@
-"""Neighbour search (parsph.neighbours) against brute force; density summation, eq. (33).
+"""Neighbour search (parsph.core.neighbours) against brute force; density summation, eq. (33).
 
 Serial unit tests: under ``mpirun -n 2`` every rank runs them independently (no
 collective calls), each with its own hypothesis draws.
@@ -11,9 +11,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from parsph import kernel as K
-from parsph.density import density_summation
-from parsph.neighbours import build_csr, cell_order, pair_count, row_lengths, row_of_pairs
+from parsph.core import kernel as K
+from parsph.core.density import density_summation
+from parsph.core.neighbours import build_csr, cell_order, pair_count, row_lengths, row_of_pairs
 
 SETTINGS = settings(max_examples=80, deadline=None, database=None)
 
@@ -152,7 +152,7 @@ def test_larger_random_set_and_halo_rows(dim):
 @pytest.mark.parametrize("dim", [1, 2, 3])
 def test_sparse_layout(monkeypatch, dim):
     """The sorted-occupied-cells layout (huge boxes) gives the same lists."""
-    import parsph.neighbours as nb
+    import parsph.core.neighbours as nb
 
     calls = []
     real = nb._sort_sparse
@@ -177,7 +177,7 @@ def test_sparse_layout(monkeypatch, dim):
 
 def test_gather_fill_gives_the_same_lists(monkeypatch):
     """The gather-and-sort fill (large, incoherently ordered sets) agrees."""
-    import parsph.neighbours as nb
+    import parsph.core.neighbours as nb
 
     rng = np.random.default_rng(13)
     x = rng.uniform(0.0, 1.0, (2000, 3))

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from parsph.io import read_frame, read_frames, read_stats
-from parsph.run import run
-from parsph.scene import load_scene
+from parsph.step.run import run
+from parsph.scene.loader import load_scene
 from tests.scenes import by_id
 
 SCHEDULES = [

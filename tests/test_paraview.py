@@ -92,8 +92,8 @@ def test_paraview_reads_steps_points_and_velocity(comm, mpi_tmp_path, dim):
     import json
 
     from parsph.io import read_frame, read_frames
-    from parsph.run import run
-    from parsph.scene import load_scene
+    from parsph.step.run import run
+    from parsph.scene.loader import load_scene
 
     name, sets = SCENES[dim]
     scene = load_scene(name, sets)

@@ -10,12 +10,13 @@ from decomposition.box import Box
 from parsph.errors import SceneError
 from parsph.io import read_frame, read_frames
 from parsph.io.probes import read_probes
-from parsph.kernel import smoothing_length, w_array
-from parsph.particles import ParticleSet
-from parsph.probes import Sampler, projected_w_array
-from parsph.run import run
-from parsph.scene import load_scene
-from tests.scenes import MOVING_2D, by_id, run_on_one_and_two, write
+from parsph.core.kernel import smoothing_length, w_array
+from parsph.core.particles import ParticleSet
+from parsph.step.probes import Sampler, projected_w_array
+from parsph.step.run import run
+from parsph.scene.loader import load_scene
+from tests.scenes import (MOVING_2D, box, by_id, load_shared, run_on_one_and_two, scene_text,
+                          toml_text, wall, write, write_shared)
 
 # --------------------------------------------------------------------------- the sums
 
@@ -41,66 +42,18 @@ def test_projected_kernel(dim):
         pytest.approx(1.0, abs=1e-6)
 
 
-LAYER = """
-[scene]
-name = "layer"
-
-[domain]
-dim = 2
-particle_size = 0.1
-lo = [0.0, -0.3]
-hi = [2.0, 1.0]
-periodic = [true, false]
-
-[run]
-end_time = 0.1
-mode = "kinematic"
-
-[output]
-every = 0.1
-progress = false
-
-[materials.mud]
-model = "kinematic"
-density = 1500.0
-
-[[bodies]]
-name = "layer"
-material = "mud"
-shape = "box"
-lo = [0.0, 0.0]
-hi = [2.0, 0.6]
-
-[[walls]]
-name = "floor"
-shape = "box"
-lo = [0.0, -0.3]
-hi = [2.0, 0.0]
-
-[[probes]]
-name = "line"
-type = "line"
-start = [0.0, 0.05]
-end = [1.93, 0.77]
-points = 9
-fields = ["p", "v", "speed", "rho", "volume_fraction", "fluid_fraction", "solid_fraction"]
-phases = ["fluid", "solid", "wall"]
-
-[[probes]]
-name = "thickness"
-type = "line"
-start = [0.03, 0.0]
-end = [1.97, 0.0]
-points = 5
-measure = "depth"
-fields = ["depth", "v", "p"]
-
-[[probes]]
-name = "box"
-type = "box"
-lo = [0.35, 0.12]
-hi = [1.21, 0.9]
-"""
+LAYER = scene_text(
+    "layer", 0.1, [0.0, -0.3], [2.0, 1.0], 0.1, periodic=[True, False],
+    run={"mode": "kinematic"}, materials={"mud": {"model": "kinematic", "density": 1500.0}},
+    bodies=[box("layer", "mud", [0.0, 0.0], [2.0, 0.6])],
+    walls=[wall("floor", [0.0, -0.3], [2.0, 0.0])],
+    probes=[{"name": "line", "type": "line", "start": [0.0, 0.05], "end": [1.93, 0.77],
+             "points": 9, "fields": ["p", "v", "speed", "rho", "volume_fraction",
+                                     "fluid_fraction", "solid_fraction"],
+             "phases": ["fluid", "solid", "wall"]},
+            {"name": "thickness", "type": "line", "start": [0.03, 0.0], "end": [1.97, 0.0],
+             "points": 5, "measure": "depth", "fields": ["depth", "v", "p"]},
+            {"name": "box", "type": "box", "lo": [0.35, 0.12], "hi": [1.21, 0.9]}])
 
 
 def _layer_particles(comm, scene):
@@ -178,39 +131,22 @@ def test_sums_equal_a_brute_force_evaluation_on_any_rank_count(comm, tmp_path):
 
 # --------------------------------------------------------------------------- in a run
 
-PROBES = """
-[[probes]]
-name = "column"
-type = "line"
-start = [0.5, 0.1]
-end = [0.5, 0.8]
-points = 8
-fields = ["p", "v", "rho"]
-phases = ["fluid"]
-
-[[probes]]
-name = "gauge"
-type = "point"
-at = [0.5, 0.0]
-measure = "depth"
-
-[[probes]]
-name = "left"
-type = "box"
-lo = [0.0, 0.0]
-hi = [0.5, 1.2]
-"""
+PROBES = toml_text(probes=[
+    {"name": "column", "type": "line", "start": [0.5, 0.1], "end": [0.5, 0.8], "points": 8,
+     "fields": ["p", "v", "rho"], "phases": ["fluid"]},
+    {"name": "gauge", "type": "point", "at": [0.5, 0.0], "measure": "depth"},
+    {"name": "left", "type": "box", "lo": [0.0, 0.0], "hi": [0.5, 1.2]}])
 SHORT = ["domain.particle_size=0.05", "run.end_time=0.1", "output.every=0.05"]
 
 
 def _hydrostatic(comm, tmp, overrides=SHORT):
-    from parsph.scene import builtin_path
+    from parsph.scene.loader import builtin_path
 
+    text = None
     if comm.rank == 0:
         with open(builtin_path("hydrostatic")) as fh:
             text = fh.read() + PROBES
-    path = comm.bcast(write(tmp, text, "hydro.toml") if comm.rank == 0 else None)
-    return load_scene(path, list(overrides))
+    return load_shared(comm, tmp, text, overrides, "hydro.toml")
 
 
 def _table(out):
@@ -268,28 +204,16 @@ def test_probes_agree_on_one_and_two_ranks(comm, mpi_tmp_path):
         assert max(abs(a[k] - b[k]) for k in keys) <= 1e-6 * scale, field
 
 
-PROBES_2D = """
-[[probes]]
-name = "front"
-type = "line"
-start = [0.2, 0.1]
-end = [1.8, 0.1]
-points = 5
-fields = ["v", "rho"]
-
-[[probes]]
-name = "floor"
-type = "box"
-lo = [0.0, 0.0]
-hi = [2.0, 0.3]
-every = 0.05
-"""
+PROBES_2D = toml_text(probes=[
+    {"name": "front", "type": "line", "start": [0.2, 0.1], "end": [1.8, 0.1], "points": 5,
+     "fields": ["v", "rho"]},
+    {"name": "floor", "type": "box", "lo": [0.0, 0.0], "hi": [2.0, 0.3], "every": 0.05}])
 
 
 def test_restart_continues_probes_without_duplicates(comm, mpi_tmp_path):
     """0 -> 0.2 s, a stale row (a run killed after its checkpoint), restart to 0.4 s: the
     file equals the uninterrupted run's, row for row."""
-    path = comm.bcast(write(mpi_tmp_path, MOVING_2D + PROBES_2D) if comm.rank == 0 else None)
+    path = write_shared(comm, mpi_tmp_path, MOVING_2D + PROBES_2D)
     half, whole = (os.path.join(mpi_tmp_path, n) for n in ("half", "whole"))
     run(load_scene(path, ["run.end_time=0.2"]), half, comm=comm, progress=False)
     if comm.rank == 0:
@@ -311,7 +235,7 @@ def test_restart_continues_probes_without_duplicates(comm, mpi_tmp_path):
 def test_a_branch_starts_its_own_probes(comm, mpi_tmp_path):
     """--restart A/checkpoint.h5 --out B: B's probes.csv starts at the checkpoint's time
     and then equals the uninterrupted run's rows; A's file is left as it was."""
-    path = comm.bcast(write(mpi_tmp_path, MOVING_2D + PROBES_2D) if comm.rank == 0 else None)
+    path = write_shared(comm, mpi_tmp_path, MOVING_2D + PROBES_2D)
     a, b, whole = (os.path.join(mpi_tmp_path, n) for n in ("a", "b", "whole"))
     run(load_scene(path, ["run.end_time=0.2"]), a, comm=comm, progress=False)
     with open(os.path.join(a, "probes.csv")) as fh:

@@ -8,8 +8,8 @@ import pytest
 from mpi4py import MPI
 
 from parsph.errors import ParsphError
-from parsph.run import run
-from parsph.scene import load_scene
+from parsph.step.run import run
+from parsph.scene.loader import load_scene
 from tests.scenes import MOVING_2D, by_id, last_frame, write
 
 
@@ -225,7 +225,7 @@ def test_branch_replaces_another_run_in_its_directory(comm, mpi_tmp_path):
 
 
 def test_same_directory():
-    from parsph.run import same_directory
+    from parsph.step.run import same_directory
 
     assert same_directory("runs/A/checkpoint.h5", "runs/A/")
     assert same_directory("runs/A/checkpoint.h5", "runs/B/../A")
@@ -239,7 +239,7 @@ def test_preemption_waits_for_a_sync_step_and_restarts_bit_for_bit(comm, mpi_tmp
     restarted from it ends bit for bit where the uninterrupted one ends."""
     import signal
 
-    from parsph import faults
+    from parsph.step import faults
     from parsph.errors import Preempted
 
     cut, whole = os.path.join(mpi_tmp_path, "cut"), os.path.join(mpi_tmp_path, "whole")

@@ -1,24 +1,19 @@
 """The run driver on a moving particle set: 1 rank and 2 ranks agree by global id."""
-import csv
 import os
 
 import numpy as np
 import pytest
 
 from parsph.io import read_frame, read_frames
-from parsph.run import run
-from parsph.scene import load_scene
-from tests.scenes import MOVING_2D, MOVING_3D, by_id, last_frame, run_on_one_and_two, write
-
-
-def _shared_scene(comm, path_dir, text, name):
-    path = write(path_dir, text, name) if comm.rank == 0 else None
-    return load_scene(comm.bcast(path))
+from parsph.step.run import run
+from parsph.scene.loader import load_scene
+from tests.scenes import (MOVING_2D, MOVING_3D, by_id, last_frame, load_shared,
+                          run_on_one_and_two, stats_rows, write)
 
 
 @pytest.mark.parametrize("text", [MOVING_2D, MOVING_3D], ids=["2d", "3d"])
 def test_kinematic_run_moves_and_conserves(comm, mpi_tmp_path, text):
-    scene = _shared_scene(comm, mpi_tmp_path, text, "scene.toml")
+    scene = load_shared(comm, mpi_tmp_path, text)
     out = os.path.join(mpi_tmp_path, "out")
     summary = run(scene, out, comm=comm, progress=False)
     end = summary["time"]  # the first step at or after run.end_time: no step is clipped
@@ -37,8 +32,7 @@ def test_kinematic_run_moves_and_conserves(comm, mpi_tmp_path, text):
                 moved[:, ax] = lo[ax] + np.mod(moved[:, ax] - lo[ax], hi[ax] - lo[ax])
         assert np.allclose(last["x"], moved, atol=1e-9)
         assert np.all(last["rho"] > 0)
-        with open(os.path.join(out, "stats.csv")) as fh:
-            rows = list(csv.DictReader(fh))
+        rows = stats_rows(out)
         assert len(rows) == summary["steps"]
         assert all(int(r["n_particles"]) == len(first["id"]) for r in rows)
         assert float(rows[-1]["time"]) == end < scene.run.end_time + float(rows[-1]["dt"])
@@ -48,7 +42,7 @@ def test_kinematic_run_moves_and_conserves(comm, mpi_tmp_path, text):
 @pytest.mark.parametrize("text", [MOVING_2D, MOVING_3D], ids=["2d", "3d"])
 def test_density_on_moving_set_one_vs_two_ranks(comm, mpi_tmp_path, text):
     """The keystone comparison: the same scene on 1 and on 2 ranks, compared by global id."""
-    scene = _shared_scene(comm, mpi_tmp_path, text, "scene.toml")
+    scene = load_shared(comm, mpi_tmp_path, text)
     one, two = run_on_one_and_two(comm, scene, mpi_tmp_path)
     if comm.rank == 0:
         a, b = last_frame(one), last_frame(two)
@@ -63,7 +57,7 @@ def test_density_on_moving_set_one_vs_two_ranks(comm, mpi_tmp_path, text):
 @pytest.mark.mpi
 def test_rebalancing_follows_a_moving_body(comm, mpi_tmp_path):
     """All particles drift into one half of the domain: the partition follows them."""
-    scene = _shared_scene(comm, mpi_tmp_path, MOVING_2D, "scene.toml")
+    scene = load_shared(comm, mpi_tmp_path, MOVING_2D)
     scene = load_scene(scene.source, ["bodies.0.velocity=[0, 0]", "bodies.1.velocity=[0, 0]",
                                       "walls.0.hi=[0.2, 0.0]", "bodies.1.vertices=[[0.1, 0.6], "
                                       "[0.9, 0.6], [0.5, 1.0]]", "bodies.0.velocity=[3, 0]",
@@ -71,8 +65,7 @@ def test_rebalancing_follows_a_moving_body(comm, mpi_tmp_path):
     out = os.path.join(mpi_tmp_path, "out")
     run(scene, out, comm=comm, progress=False)
     if comm.rank == 0:
-        with open(os.path.join(out, "stats.csv")) as fh:
-            rows = list(csv.DictReader(fh))
+        rows = stats_rows(out)
         worst = max(int(r["n_owned_max"]) / max(int(r["n_owned_min"]), 1) for r in rows)
         # without re-partitioning one rank would end up with (nearly) everything
         assert worst <= scene.run.rebalance_tolerance * 1.3
@@ -83,7 +76,7 @@ def test_rebalancing_follows_a_moving_body(comm, mpi_tmp_path):
 def test_a_rank_without_particles(comm, mpi_tmp_path):
     """One particle on two ranks: the empty rank takes part in every collective."""
     text = MOVING_2D.replace("hi = [0.9, 0.5]", "hi = [0.15, 0.05]")
-    scene = _shared_scene(comm, mpi_tmp_path, text, "one.toml")
+    scene = load_shared(comm, mpi_tmp_path, text, name="one.toml")
     scene = load_scene(scene.source, ["walls.0.hi=[0.05, 0.0]", "walls.0.lo=[0.0, -0.05]",
                                       "bodies.1.vertices=[[1.0, 0.0], [1.05, 0.0], [1.0, 0.05]]"])
     summary = run(scene, os.path.join(mpi_tmp_path, "out"), comm=comm, progress=False)
@@ -111,7 +104,7 @@ def test_only_the_stages_a_scene_needs_are_imported(tmp_path, name, overrides, f
     import sys
 
     scene = write(tmp_path, MOVING_2D) if name == "moving" else name
-    code = (f"import sys; from parsph.scene import load_scene; from parsph.run import run; "
+    code = (f"import sys; from parsph.scene.loader import load_scene; from parsph.step.run import run; "
             f"run(load_scene({scene!r}, {overrides!r}), {str(tmp_path / 'out')!r}, "
             f"progress=False); print(sorted(m for m in sys.modules "
             f"if m.startswith({forbidden!r})))")

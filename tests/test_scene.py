@@ -4,8 +4,8 @@ import dataclasses
 import pytest
 
 from parsph.errors import SceneError
-from parsph.scene import builtin_names, load_scene
-from tests.scenes import MOVING_2D, MOVING_3D, write
+from parsph.scene.loader import builtin_names, load_scene
+from tests.scenes import MOVING_2D, MOVING_3D, box, hencky, toml_text, write
 
 
 def test_builtin_scenes_load():
@@ -119,33 +119,22 @@ def test_heightmap_errors(tmp_path):
 def test_scene_key_reference_is_current():
     import os
 
-    from parsph.scenedoc import markdown
+    from parsph.scene.scenedoc import markdown
 
     path = os.path.join(os.path.dirname(__file__), "..", "docs", "scenes.md")
     with open(path) as fh:
-        assert fh.read() == markdown(), "regenerate: python -m parsph.scenedoc > docs/scenes.md"
+        assert fh.read() == markdown(), "regenerate: python -m parsph.scene.scenedoc > docs/scenes.md"
 
 
 def test_scene_with_solid_and_fluid_is_coupled(tmp_path):
     """Both phases in one scene: the coupled stage in the mixed layout, periodic axes
     too; a bad [phase_change] is refused with the key named."""
-    from parsph.pipeline import layout, plan
-    from parsph.scene import builtin_path
+    from parsph.step.pipeline import layout, plan
+    from parsph.scene.loader import builtin_path
 
-    text = open(builtin_path("hydrostatic")).read() + """
-[materials.soil]
-model = "hencky"
-density = 2000.0
-poisson_ratio = 0.3
-young_modulus = 1.0e6
-
-[[bodies]]
-name = "block"
-material = "soil"
-shape = "box"
-lo = [0.4, 1.0]
-hi = [0.6, 1.1]
-"""
+    text = open(builtin_path("hydrostatic")).read() + toml_text(
+        materials={"soil": hencky(2000.0, 1.0e6)},
+        bodies=[box("block", "soil", [0.4, 1.0], [0.6, 1.1])])
     scene = load_scene(write(tmp_path, text))
     specs = plan(scene)
     assert [s.name for s in specs] == ["coupled"] and layout(specs) == "mixed"
@@ -167,7 +156,7 @@ hi = [0.6, 1.1]
 def test_geometry_warnings_name_thin_walls_and_misfit_bodies():
     """A wall thinner than 2h and a box body that is not a whole number of particles get
     a warning naming them and the fix; the built-in scenes get none."""
-    from parsph.scene import geometry_warnings
+    from parsph.scene.loader import geometry_warnings
 
     for name in builtin_names():
         assert geometry_warnings(load_scene(name)) == [], name

@@ -25,8 +25,8 @@ def _png_size(path):
 
 @pytest.fixture
 def short_run(comm, mpi_tmp_path):
-    from parsph.run import run
-    from parsph.scene import load_scene
+    from parsph.step.run import run
+    from parsph.scene.loader import load_scene
 
     scene = load_scene("dam_break", ["domain.particle_size=0.02", "run.end_time=0.02",
                                      "output.every=0.01"])
@@ -38,7 +38,7 @@ def short_run(comm, mpi_tmp_path):
 
 
 def test_series_of_a_run_match_stats(comm, short_run, capsys):
-    from parsph.cli import main
+    from parsph.cli.main import main
     from parsph.io.series import plot_series
     from parsph.io.stats import read_stats
 

@@ -1,76 +1,45 @@
 """TLSPH hard cases that must stay stable (DESIGN.md, verification ladder step 4)."""
-import csv
 import os
 
 import numpy as np
 import pytest
 
-from parsph.io import read_frame
-from parsph.run import run
-from parsph.scene import load_scene
-from tests.scenes import write
+from parsph.step.run import run
+from tests.scenes import (G_2D, box, first_and_last, hencky, initial, load_shared, scene_text,
+                          stats_rows, wall)
 
-HEAD = """
-[scene]
-name = "{name}"
-[domain]
-dim = 2
-particle_size = {d}
-lo = {lo}
-hi = {hi}
-[run]
-end_time = {end}
-{extra_run}
-[output]
-every = {every}
-progress = false
-[gravity]
-g = {g}
-[solid]
-{solid}
-[materials.m]
-{material}
-[[bodies]]
-name = "body"
-material = "m"
-shape = "box"
-lo = {blo}
-hi = {bhi}
-"""
-FLOOR = """
-[[walls]]
-name = "floor"
-shape = "box"
-lo = [-0.5, -0.15]
-hi = [1.0, 0.0]
-"""
+FLOOR = wall("floor", [-0.5, -0.15], [1.0, 0.0])
 
 
-def _run(comm, tmp, name, tail="", **kw):
-    text = HEAD.format(name=name, **kw) + tail
-    path = write(tmp, text, f"{name}.toml") if comm.rank == 0 else None
-    scene = load_scene(comm.bcast(path))
+def _run(comm, tmp, name, d, lo, hi, end, every, g, material, body, solid=None, run_keys=None,
+         walls=(), constraints=()):
+    """Run a 2D scene of one box body (``body``: its lo and hi) of ``material`` into
+    ``tmp/name``; on rank 0 its first and last frames (the body's particles by global id,
+    the walls' left out) and its stats rows."""
+    text = scene_text(name, d, lo, hi, end, every, g=g, run=run_keys, solid=solid or {},
+                      materials={"m": material}, bodies=[box("body", "m", *body)],
+                      walls=list(walls), constraints=list(constraints))
     out = os.path.join(tmp, name)
-    run(scene, out, comm=comm, progress=False)
+    run(load_shared(comm, tmp, text, name=f"{name}.toml"), out, comm=comm, progress=False)
     if comm.rank != 0:
         return None, None, None
-    first = read_frame(os.path.join(out, "particles.h5"), 0)
-    last = read_frame(os.path.join(out, "particles.h5"), "last")
-    solid = first["phase"][np.argsort(first["id"])] == 0  # wall particles left out
-    first = {k: v[np.argsort(first["id"])][solid] for k, v in first.items()}
-    last = {k: v[np.argsort(last["id"])][solid] for k, v in last.items()}
-    with open(os.path.join(out, "stats.csv")) as fh:
-        rows = list(csv.DictReader(fh))
-    return first, last, rows
+    first, last = first_and_last(out)
+    kept = first["phase"] == 0
+    return ({k: v[kept] for k, v in first.items()}, {k: v[kept] for k, v in last.items()},
+            stats_rows(out))
+
+
+def _spin(omega):
+    """Spin the particles within 0.2 m of the origin at ``omega`` (rad/s) about it."""
+    return initial("spin", "rigid_rotation", [-0.2, -0.2], [0.2, 0.2], centre=[0.0, 0.0],
+                   omega=omega)
 
 
 def test_nearly_incompressible_block_under_gravity(comm, mpi_tmp_path):
     """nu = 0.49 block dropped on a floor by gravity settles without blowing up."""
     first, last, rows = _run(
-        comm, mpi_tmp_path, "nu049", d=0.025, lo="[-0.6, -0.3]", hi="[1.1, 0.6]", end=0.25,
-        extra_run="", every=0.05, g="[0.0, -9.81]", solid="",
-        material='model = "hencky"\ndensity = 1000.0\npoisson_ratio = 0.49\n'
-                 'young_modulus = 1.0e6', blo="[0.0, 0.0]", bhi="[0.3, 0.3]", tail=FLOOR)
+        comm, mpi_tmp_path, "nu049", 0.025, [-0.6, -0.3], [1.1, 0.6], 0.25, 0.05, G_2D,
+        hencky(1000.0, 1.0e6, 0.49), ([0.0, 0.0], [0.3, 0.3]), walls=[FLOOR])
     if comm.rank == 0:
         assert np.isfinite(last["x"]).all()
         drop = first["x"][:, 1] - last["x"][:, 1]
@@ -92,25 +61,15 @@ def test_bar_stretched_fifty_percent_without_clumping(comm, mpi_tmp_path, hourgl
     gradient cannot see) by about +-10 % in the inner lines; with it every line is
     uniform to 3 %.
     """
-    tail = """
-[[constraints]]
-name = "left"
-lo = [-0.01, -0.01]
-hi = [0.025, 0.11]
-velocity = [-0.25, 0.0]
-axes = [true, false]
-[[constraints]]
-name = "right"
-lo = [0.975, -0.01]
-hi = [1.01, 0.11]
-velocity = [0.25, 0.0]
-axes = [true, false]
-"""
+    constraints = [
+        {"name": "left", "lo": [-0.01, -0.01], "hi": [0.025, 0.11], "velocity": [-0.25, 0.0],
+         "axes": [True, False]},
+        {"name": "right", "lo": [0.975, -0.01], "hi": [1.01, 0.11], "velocity": [0.25, 0.0],
+         "axes": [True, False]}]
     first, last, rows = _run(
-        comm, mpi_tmp_path, "bar", d=0.025, lo="[-0.4, -0.2]", hi="[1.4, 0.3]", end=1.0,
-        extra_run="", every=0.25, g="[0.0, 0.0]", solid=f"hourglass = {hourglass}",
-        material='model = "hencky"\ndensity = 1000.0\npoisson_ratio = 0.3\n'
-                 'young_modulus = 1.0e6', blo="[0.0, 0.0]", bhi="[1.0, 0.1]", tail=tail)
+        comm, mpi_tmp_path, "bar", 0.025, [-0.4, -0.2], [1.4, 0.3], 1.0, 0.25, [0.0, 0.0],
+        hencky(1000.0, 1.0e6), ([0.0, 0.0], [1.0, 0.1]), solid={"hourglass": hourglass},
+        constraints=constraints)
     if comm.rank == 0:
         X, x = first["x"], last["x"]
         length = x[:, 0].max() - x[:, 0].min()
@@ -131,21 +90,9 @@ axes = [true, false]
 def test_plate_spinning_two_turns(comm, mpi_tmp_path):
     """A free square spun two turns: angular momentum kept to 1 %, no spurious stress."""
     omega = 20 * np.pi
-    tail = f"""
-[[constraints]]
-name = "spin"
-kind = "initial"
-profile = "rigid_rotation"
-lo = [-0.2, -0.2]
-hi = [0.2, 0.2]
-centre = [0.0, 0.0]
-omega = {omega}
-"""
     first, last, rows = _run(
-        comm, mpi_tmp_path, "spin", d=0.02, lo="[-0.3, -0.3]", hi="[0.3, 0.3]", end=0.2,
-        extra_run="", every=0.05, g="[0.0, 0.0]", solid="",
-        material='model = "hencky"\ndensity = 1000.0\npoisson_ratio = 0.3\n'
-                 'young_modulus = 1.0e8', blo="[-0.1, -0.1]", bhi="[0.1, 0.1]", tail=tail)
+        comm, mpi_tmp_path, "spin", 0.02, [-0.3, -0.3], [0.3, 0.3], 0.2, 0.05, [0.0, 0.0],
+        hencky(1000.0, 1.0e8), ([-0.1, -0.1], [0.1, 0.1]), constraints=[_spin(omega)])
     if comm.rank == 0:
         def ang(fr):
             return np.sum(fr["x"][:, 0] * fr["v"][:, 1] - fr["x"][:, 1] * fr["v"][:, 0])
@@ -164,12 +111,11 @@ omega = {omega}
 def test_cam_clay_towards_zero_effective_stress(comm, mpi_tmp_path):
     """Cam-Clay block at p' = 200 Pa with traction-free surfaces under gravity: p' -> 0."""
     first, last, rows = _run(
-        comm, mpi_tmp_path, "camclay0", d=0.02, lo="[-0.6, -0.3]", hi="[1.1, 0.4]", end=0.02,
-        extra_run="dt = 2.0e-5", every=0.01, g="[0.0, -9.81]", solid="",
-        material='model = "cam_clay"\ndensity = 2650.0\nporosity = 0.4\npoisson_ratio = 0.3\n'
-                 'kappa = 0.05\nlam = 0.2\ncritical_state_ratio = 1.0\n'
-                 'preconsolidation = 1000.0\ninitial_pressure = 200.0',
-        blo="[0.0, 0.0]", bhi="[0.2, 0.2]", tail=FLOOR)
+        comm, mpi_tmp_path, "camclay0", 0.02, [-0.6, -0.3], [1.1, 0.4], 0.02, 0.01, G_2D,
+        {"model": "cam_clay", "density": 2650.0, "porosity": 0.4, "poisson_ratio": 0.3,
+         "kappa": 0.05, "lam": 0.2, "critical_state_ratio": 1.0, "preconsolidation": 1000.0,
+         "initial_pressure": 200.0},
+        ([0.0, 0.0], [0.2, 0.2]), run_keys={"dt": 2.0e-5}, walls=[FLOOR])
     if comm.rank == 0:
         assert np.isfinite(last["x"]).all() and np.isfinite(last["p"]).all()
         assert np.isfinite(last["porosity"]).all()
@@ -181,22 +127,11 @@ def test_cam_clay_towards_zero_effective_stress(comm, mpi_tmp_path):
 def test_every_particle_plastic_at_once(comm, mpi_tmp_path):
     """A cohesionless disc-like plate spun fast: tension everywhere, all yield together."""
     omega = 10.0
-    tail = f"""
-[[constraints]]
-name = "spin"
-kind = "initial"
-profile = "rigid_rotation"
-lo = [-0.2, -0.2]
-hi = [0.2, 0.2]
-centre = [0.0, 0.0]
-omega = {omega}
-"""
     first, last, rows = _run(
-        comm, mpi_tmp_path, "allplastic", d=0.02, lo="[-0.5, -0.5]", hi="[0.5, 0.5]",
-        end=0.02, extra_run="", every=0.01, g="[0.0, 0.0]", solid="",
-        material='model = "drucker_prager"\ndensity = 2000.0\npoisson_ratio = 0.3\n'
-                 'young_modulus = 2.0e6\nfriction_angle = 20.0\ncohesion = 0.0',
-        blo="[-0.1, -0.1]", bhi="[0.1, 0.1]", tail=tail)
+        comm, mpi_tmp_path, "allplastic", 0.02, [-0.5, -0.5], [0.5, 0.5], 0.02, 0.01,
+        [0.0, 0.0], {"model": "drucker_prager", "density": 2000.0, "poisson_ratio": 0.3,
+                     "young_modulus": 2.0e6, "friction_angle": 20.0, "cohesion": 0.0},
+        ([-0.1, -0.1], [0.1, 0.1]), constraints=[_spin(omega)])
     if comm.rank == 0:
         plastic = np.array([float(r["solid_plastic"]) for r in rows])
         n_solid = int(rows[0]["n_solid"])
@@ -211,20 +146,11 @@ omega = {omega}
 def test_block_sliding_on_rough_floor_stops_by_coulomb_friction(comm, mpi_tmp_path):
     """Wall contact: a block launched along a floor with mu = 0.5 decelerates at ~mu g."""
     mu, v0 = 0.5, 0.5
-    tail = FLOOR + f"""
-[[constraints]]
-name = "launch"
-kind = "initial"
-profile = "uniform"
-lo = [0.0, 0.0]
-hi = [0.2, 0.1]
-velocity = [{v0}, 0.0]
-"""
     first, last, rows = _run(
-        comm, mpi_tmp_path, "slide", d=0.0125, lo="[-0.6, -0.3]", hi="[1.1, 0.4]", end=0.08,
-        extra_run="", every=0.04, g="[0.0, -9.81]", solid=f"wall_friction = {mu}",
-        material='model = "hencky"\ndensity = 1000.0\npoisson_ratio = 0.3\n'
-                 'young_modulus = 1.0e6', blo="[0.0, 0.0]", bhi="[0.2, 0.1]", tail=tail)
+        comm, mpi_tmp_path, "slide", 0.0125, [-0.6, -0.3], [1.1, 0.4], 0.08, 0.04, G_2D,
+        hencky(1000.0, 1.0e6), ([0.0, 0.0], [0.2, 0.1]), solid={"wall_friction": mu},
+        walls=[FLOOR], constraints=[initial("launch", "uniform", [0.0, 0.0], [0.2, 0.1],
+                                            velocity=[v0, 0.0])])
     if comm.rank == 0:
         t = 0.08
         expected = v0 - mu * 9.81 * t  # 0.108 m/s
@@ -236,52 +162,15 @@ velocity = [{v0}, 0.0]
         assert np.abs(last["v"][:, 1]).max() < 0.5 * v0  # elastic rocking only
 
 
-SLIDE_3D = """
-[scene]
-name = "slide3d"
-[domain]
-dim = 3
-particle_size = 0.02
-lo = [-0.2, -0.2, -0.2]
-hi = [0.8, 0.3, 0.4]
-[run]
-end_time = {end}
-[output]
-every = {end}
-progress = false
-[gravity]
-g = {g}
-[solid]
-wall_friction = {mu}
-[materials.m]
-model = "hencky"
-density = 1000.0
-poisson_ratio = 0.3
-young_modulus = 1.0e6
-[[bodies]]
-name = "block"
-material = "m"
-shape = "box"
-lo = [0.0, 0.0, 0.0]
-hi = [0.1, 0.1, 0.1]
-[[walls]]
-name = "floor"
-shape = "box"
-lo = [-0.1, -0.06, -0.06]
-hi = [0.7, 0.16, 0.0]
-[[walls]]
-name = "front"
-shape = "box"
-lo = [-0.1, -0.06, 0.0]
-hi = [0.7, 0.0, 0.2]
-{side}
-[[walls]]
-name = "back"
-shape = "box"
-lo = [-0.1, 0.1, 0.0]
-hi = [0.7, 0.16, 0.2]
-{side}
-"""
+def _slide_3d(end, g, mu, side):
+    """A 3D block on a floor between two side walls (``side``: their own keys)."""
+    return scene_text(
+        "slide3d", 0.02, [-0.2, -0.2, -0.2], [0.8, 0.3, 0.4], end, g=list(g),
+        solid={"wall_friction": mu}, materials={"m": hencky(1000.0, 1.0e6)},
+        bodies=[box("block", "m", [0.0, 0.0, 0.0], [0.1, 0.1, 0.1])],
+        walls=[wall("floor", [-0.1, -0.06, -0.06], [0.7, 0.16, 0.0]),
+               wall("front", [-0.1, -0.06, 0.0], [0.7, 0.0, 0.2], **side),
+               wall("back", [-0.1, 0.1, 0.0], [0.7, 0.16, 0.2], **side)])
 
 
 def test_per_wall_friction_block_on_rough_floor_between_smooth_walls(comm, mpi_tmp_path):
@@ -293,21 +182,14 @@ def test_per_wall_friction_block_on_rough_floor_between_smooth_walls(comm, mpi_t
     mu, end = 0.3, 0.2
     g = np.array([4.905, -2.943, -7.95])  # along the slide, into the side, into the floor
     moved = {}
-    for case, side in (("smooth", "friction = 0.0"), ("rough", "")):
-        text = SLIDE_3D.format(end=end, g=list(g), mu=mu, side=side)
-        sub = os.path.join(mpi_tmp_path, case)
+    for case, side in (("smooth", {"friction": 0.0}), ("rough", {})):
+        out = os.path.join(mpi_tmp_path, case)
+        scene = load_shared(comm, mpi_tmp_path, _slide_3d(end, g, mu, side), name=f"{case}.toml")
+        run(scene, out, comm=comm, progress=False)
         if comm.rank == 0:
-            os.makedirs(sub, exist_ok=True)
-        comm.barrier()
-        path = write(sub, text) if comm.rank == 0 else None
-        scene = load_scene(comm.bcast(path))
-        run(scene, os.path.join(sub, "out"), comm=comm, progress=False)
-        if comm.rank == 0:
-            h5 = os.path.join(sub, "out", "particles.h5")
-            first, last = read_frame(h5, 0), read_frame(h5, "last")
-            a, b = (np.argsort(f["id"]) for f in (first, last))
-            solid = first["phase"][a] == 0
-            dx = last["x"][b][solid] - first["x"][a][solid]
+            first, last = first_and_last(out)
+            solid = first["phase"] == 0
+            dx = last["x"][solid] - first["x"][solid]
             moved[case] = (float(dx[:, 0].mean()), float(dx[:, 1].mean()),
                            float(last["time"] if "time" in last else end))
     if comm.rank == 0:

@@ -1,4 +1,4 @@
-"""The strongly coupled pressure step (docs/coupling.md, parsph/coupling/pressure.py).
+"""The strongly coupled pressure step (docs/coupling.md, parsph/fluid/response.py).
 
 The PPE sees each type-II solid particle's velocity after the pressure has acted on its
 true mass; these tests check what that buys: no energy from the projection at any
@@ -9,76 +9,17 @@ import os
 import numpy as np
 import pytest
 
-from parsph.run import _build
-from parsph.scene import load_scene
-from tests.scenes import write
+from parsph.step.run import _build
+from parsph.scene.loader import load_scene
+from tests.scenes import (G_2D, hencky, load_shared, scene_text, stats_rows, tank, water,
+                          water_around)
 
 #: A water block with an elastic block inside it, no gravity, no walls: a state for one
 #: pressure step (velocities are set by the test).
-BLOCK_IN_BLOB = """
-[scene]
-name = "block_in_blob"
-[domain]
-dim = 2
-particle_size = 0.02
-lo = [-0.5, -0.5]
-hi = [0.9, 0.9]
-[run]
-end_time = 1.0
-[output]
-every = 1.0
-progress = false
-[gravity]
-g = [0.0, 0.0]
-[fluid]
-alpha = 0.0
-[solid]
-jst_eps4 = 0.0
-[materials.water]
-model = "newtonian"
-density = 1000.0
-viscosity = 0.0
-[materials.block]
-model = "hencky"
-density = 1000.0
-young_modulus = 1.0e6
-poisson_ratio = 0.3
-[[bodies]]
-name = "w_left"
-material = "water"
-shape = "box"
-lo = [0.0, 0.0]
-hi = [0.12, 0.4]
-[[bodies]]
-name = "w_right"
-material = "water"
-shape = "box"
-lo = [0.26, 0.0]
-hi = [0.4, 0.4]
-[[bodies]]
-name = "w_below"
-material = "water"
-shape = "box"
-lo = [0.12, 0.0]
-hi = [0.26, 0.14]
-[[bodies]]
-name = "w_above"
-material = "water"
-shape = "box"
-lo = [0.12, 0.24]
-hi = [0.26, 0.4]
-[[bodies]]
-name = "block"
-material = "block"
-shape = "box"
-lo = [0.12, 0.14]
-hi = [0.26, 0.24]
-"""
-
-
-def _scene(tmp, text, overrides, comm):
-    path = comm.bcast(write(tmp, text) if comm.rank == 0 else None)
-    return load_scene(path, list(overrides))
+BLOCK_IN_BLOB = scene_text(
+    "block_in_blob", 0.02, [-0.5, -0.5], [0.9, 0.9], 1.0, g=[0.0, 0.0], fluid={"alpha": 0.0},
+    solid={"jst_eps4": 0.0}, materials={"water": water(0.0), "block": hencky(1000.0, 1.0e6)},
+    bodies=water_around([0.12, 0.14], [0.26, 0.24], [0.0, 0.0], [0.4, 0.4]))
 
 
 def _kinetic_energy(ctx):
@@ -98,8 +39,8 @@ def test_pressure_step_never_adds_kinetic_energy(comm, mpi_tmp_path, ratio, fiel
     random field) of water and an elastic block at rho_s / rho_f = ratio only projects
     the velocities: their kinetic energy must not rise. A partitioned coupling (the
     solid a wall at its predicted velocity, the reaction after) gives no such bound."""
-    scene = _scene(mpi_tmp_path, BLOCK_IN_BLOB, [f"materials.block.density={1000.0 * ratio}"],
-                   comm)
+    scene = load_shared(comm, mpi_tmp_path, BLOCK_IN_BLOB,
+                        [f"materials.block.density={1000.0 * ratio}"])
     out = os.path.join(mpi_tmp_path, "out")
     for seed in range(3):
         ctx, _, stages, _ = _build(scene, out, comm, (), None)
@@ -136,8 +77,8 @@ def _max():
 def _lattice_pair(d=0.1):
     """A 5 x 4 block of fluid (rows 0..19) on a 5 x 2 block of solid (rows 20..29), one
     rank, every pair within the support listed; fluid-seen masses, solid true mass 3x."""
-    from parsph.kernel import smoothing_length, support_radius
-    from parsph.neighbours import build_csr
+    from parsph.core.kernel import smoothing_length, support_radius
+    from parsph.core.neighbours import build_csr
 
     h = smoothing_length(d)
     xs = np.arange(5) * d
@@ -173,8 +114,8 @@ def test_the_ppe_sees_the_solid_velocity_after_the_pressure():
     v* + dt a_s(p), a_s(p) their reaction (eq. (45)) on their true mass (held components
     excluded): the divergence sees the solid's velocity after the pressure acts. The part
     assembled into the preconditioner's matrix (neighbour pairs) is the product's."""
-    from parsph.coupling import pressure
-    from parsph.fluid import assembly
+    from parsph.fluid import response as pressure
+    from parsph.fluid import ppe
 
     d, h, x, indptr, indices, fluid, m, scale, rho, rho0, free, inv, row = _lattice_pair()
     dt, n = 1e-3, 30
@@ -183,12 +124,12 @@ def test_the_ppe_sees_the_solid_velocity_after_the_pressure():
     ptr, cols, vals = np.zeros(n + 1, np.int64), np.empty(cap, np.int64), np.empty(cap)
 
     def rhs_of(vs):
-        _, rhs = assembly.ppe_csr(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, 2,
+        _, rhs = ppe.ppe_csr(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, 2,
                                   dt, 0.0, d, True, True, 0, ptr, cols, vals)
         return rhs
 
     vs = np.random.default_rng(1).normal(size=(n, 2))
-    nnz, rhs = assembly.ppe_csr(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, 2,
+    nnz, rhs = ppe.ppe_csr(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, 2,
                                 dt, 0.0, d, True, True, 0, ptr, cols, vals)
     C = _dense(ptr, cols, vals, n, n)
     nptr, ncols, nvals = np.zeros(n + 1, np.int64), np.empty(nnz, np.int64), np.empty(nnz)
@@ -224,63 +165,11 @@ def test_the_ppe_sees_the_solid_velocity_after_the_pressure():
 
 #: An elastic block straddling the surface of water in a tank (its draft 0.6 of its
 #: height): lighter than water it floats up to Archimedes' draft, heavier it sinks.
-BLOCK_IN_TANK = """
-[scene]
-name = "block_in_tank"
-[domain]
-dim = 2
-particle_size = 0.01
-lo = [-0.05, -0.05]
-hi = [0.65, 0.6]
-[run]
-end_time = 1.5
-[output]
-every = 0.1
-progress = false
-[gravity]
-g = [0.0, -9.81]
-[solid]
-max_substeps = 16
-[materials.water]
-model = "newtonian"
-density = 1000.0
-viscosity = 1.0e-6
-[materials.block]
-model = "hencky"
-density = 500.0
-young_modulus = 2.0e5
-poisson_ratio = 0.3
-[[bodies]]
-name = "w_left"
-material = "water"
-shape = "box"
-lo = [0.0, 0.0]
-hi = [0.25, 0.35]
-[[bodies]]
-name = "w_right"
-material = "water"
-shape = "box"
-lo = [0.35, 0.0]
-hi = [0.6, 0.35]
-[[bodies]]
-name = "w_below"
-material = "water"
-shape = "box"
-lo = [0.25, 0.0]
-hi = [0.35, 0.29]
-[[bodies]]
-name = "block"
-material = "block"
-shape = "box"
-lo = [0.25, 0.29]
-hi = [0.35, 0.39]
-[[walls]]
-name = "tank"
-shape = "tank"
-lo = [0.0, 0.0]
-hi = [0.6, 0.55]
-sides = ["left", "right", "bottom"]
-"""
+BLOCK_IN_TANK = scene_text(
+    "block_in_tank", 0.01, [-0.05, -0.05], [0.65, 0.6], 1.5, 0.1, g=G_2D,
+    solid={"max_substeps": 16}, materials={"water": water(), "block": hencky(500.0, 2.0e5)},
+    bodies=water_around([0.25, 0.29], [0.35, 0.39], [0.0, 0.0], [0.6, 0.35]),
+    walls=[tank("tank", [0.0, 0.0], [0.6, 0.55])])
 
 
 def _draft(frame, d):
@@ -307,20 +196,17 @@ def test_block_in_water_at_any_density_ratio(comm, mpi_tmp_path, ratio):
     raised the kinetic energy 3-5x the bound in an earlier session; measured now: 0.62 of
     it on 1 rank, 0.74 on 2)."""
     from parsph.io import read_frame, read_frames
-    from parsph.run import run
+    from parsph.step.run import run
 
     end = 0.45 if ratio > 5 else 1.5  # the heaviest lands on the floor at ~0.28 s
-    scene = _scene(mpi_tmp_path, BLOCK_IN_TANK, [f"materials.block.density={1000.0 * ratio}",
-                                                  f"run.end_time={end}", "output.every=0.05"],
-                   comm)
+    scene = load_shared(comm, mpi_tmp_path, BLOCK_IN_TANK,
+                        [f"materials.block.density={1000.0 * ratio}", f"run.end_time={end}",
+                         "output.every=0.05"])
     out = os.path.join(mpi_tmp_path, "out")
     run(scene, out, comm=comm, progress=False)
     if comm.rank != 0:
         return
-    import csv
-
-    with open(os.path.join(out, "stats.csv")) as fh:
-        rows = list(csv.DictReader(fh))
+    rows = stats_rows(out)
     ke = np.array([float(r["kinetic_energy"]) for r in rows])
     bound = np.array([float(r["energy_bound"]) for r in rows])
     rise = ke[3:] - ke[:-3]
@@ -356,18 +242,15 @@ def test_elastic_gate_against_the_experiment(comm, mpi_tmp_path):
     """``elastic_gate`` (Antoci, Gallati & Sibilla 2007) on 2 ranks to 0.4 s, the built-in
     scene as it is: the free end opens as measured (within the spread of published
     simulations), it stays stable (no step makes energy) and the gate survives."""
-    from parsph.coupling.references import free_end, gate_errors
-    from parsph.run import run
+    from parsph.verify.coupling import free_end, gate_errors
+    from parsph.step.run import run
 
     scene = load_scene("elastic_gate", ["output.progress=false"])
     out = os.path.join(mpi_tmp_path, "gate")
     run(scene, out, comm=comm, progress=False)
     if comm.rank != 0:
         return
-    import csv
-
-    with open(os.path.join(out, "stats.csv")) as fh:
-        rows = list(csv.DictReader(fh))
+    rows = stats_rows(out)
     # the run stops at the first sync step at or after run.end_time
     late = scene.fluid.preconditioner_reuse * max(float(r["dt"]) for r in rows) * (1 + 1e-9)
     assert 0.4 <= float(rows[-1]["time"]) <= 0.4 + late

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from parsph.errors import ParsphError
-from parsph.study import convergence_order, pareto, parse_vary, study
-from tests.scenes import MOVING_2D, write
+from parsph.cli.study import convergence_order, pareto, parse_vary, study
+from tests.scenes import MOVING_2D, write_shared
 
 
 def test_pareto_and_order():
@@ -27,7 +27,7 @@ def test_parse_vary_errors():
 
 
 def test_study_writes_table_and_plot(comm, mpi_tmp_path):
-    path = comm.bcast(write(mpi_tmp_path, MOVING_2D) if comm.rank == 0 else None)
+    path = write_shared(comm, mpi_tmp_path, MOVING_2D)
     out = os.path.join(mpi_tmp_path, "study")
     rows = study(comm, path, out, {"particle_size": [0.1, 0.05], "cfl": [0.5, 0.25]},
                  overrides=["run.end_time=0.2", "output.every=0.1"])
@@ -50,7 +50,7 @@ def test_study_writes_table_and_plot(comm, mpi_tmp_path):
 
 def test_plot_labels_name_the_settings_that_vary():
     """study.png labels each point with what the study varied, not always d."""
-    from parsph.study import point_labels
+    from parsph.cli.study import point_labels
 
     nan = float("nan")
     by_d = [dict(particle_size=d, cfl=nan, ksp_rtol=nan) for d in (0.1, 0.05)]
@@ -63,8 +63,8 @@ def test_plot_labels_name_the_settings_that_vary():
 
 def test_study_without_vary_runs_the_scenes_default_sweep(comm, mpi_tmp_path, capsys):
     """``parsph study hydrostatic --out DIR``: the three sizes the scene declares."""
-    from parsph.cli import main
-    from parsph.scene import load_scene
+    from parsph.cli.main import main
+    from parsph.scene.loader import load_scene
 
     out = os.path.join(mpi_tmp_path, "default")
     assert main(["study", "hydrostatic", "--out", out, "--set", "run.end_time=0.01",
@@ -85,7 +85,7 @@ def test_study_without_vary_runs_the_scenes_default_sweep(comm, mpi_tmp_path, ca
 def test_study_default_sweep_of_a_users_scene(comm, mpi_tmp_path):
     """A scene of one's own: refused without a declaration (naming --vary and the key),
     its declared sweep run with one, --vary still overriding it."""
-    path = comm.bcast(write(mpi_tmp_path, MOVING_2D) if comm.rank == 0 else None)
+    path = write_shared(comm, mpi_tmp_path, MOVING_2D)
     out = os.path.join(mpi_tmp_path, "mine")
     short = ["run.end_time=0.1", "output.every=0.1"]
     with pytest.raises(ParsphError, match=r"declares no default sweep; give --vary .*"
@@ -100,7 +100,7 @@ def test_study_default_sweep_of_a_users_scene(comm, mpi_tmp_path):
 
 
 def test_every_builtin_scene_declares_its_sweep():
-    from parsph.scene import builtin_names, geometry_warnings, load_scene
+    from parsph.scene.loader import builtin_names, geometry_warnings, load_scene
 
     for name in builtin_names():
         sizes = load_scene(name).study.particle_sizes
@@ -115,7 +115,7 @@ def test_every_builtin_scene_declares_its_sweep():
                                           ("[0.02, -0.01]", r"study.particle_sizes\[1\]")])
 def test_bad_sweep_names_the_key(sizes, match):
     from parsph.errors import SceneError
-    from parsph.scene import load_scene
+    from parsph.scene.loader import load_scene
 
     with pytest.raises(SceneError, match=match) as info:
         load_scene("hydrostatic", [f"study.particle_sizes={sizes}"])

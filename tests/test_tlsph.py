@@ -6,13 +6,14 @@ import numpy as np
 import pytest
 
 from parsph.io import read_frame
-from parsph.neighbours import build_csr
-from parsph.run import run
-from parsph.scene import load_scene
+from parsph.core.neighbours import build_csr
+from parsph.step.run import run
+from parsph.scene.loader import load_scene
 from parsph.solid import kernels
-from parsph.solid.references import csl_distance
+from parsph.verify.solid import csl_distance
 from parsph.solid.stage import TLSPH
-from tests.scenes import last_frame, run_on_one_and_two, write
+from tests.scenes import (initial, last_frame, load_shared, run_on_one_and_two, scene_text,
+                          stats_rows, wall)
 
 
 def _lattice(dim, n, d, jitter=0.0, seed=1):
@@ -74,7 +75,7 @@ PLATE_H12 = 0.02 / 12  # particle size of the plate test: 12 particles across H
 @pytest.mark.mpi(min_size=2)  # the 2-rank session (CI time: the same physics on 1 rank)
 def test_elastic_plate_period_and_energy(comm, mpi_tmp_path):
     """Half a period of the clamped plate (d = H/12) vs 2D elasticity; energy bounded."""
-    from parsph.solid.references import plate_period_error, plate_reference_period, \
+    from parsph.verify.solid import plate_period_error, plate_reference_period, \
         thin_plate_period, tip_period
 
     scene = load_scene("elastic_plate", [f"domain.particle_size={PLATE_H12!r}",
@@ -90,8 +91,7 @@ def test_elastic_plate_period_and_energy(comm, mpi_tmp_path):
         # corrected gradient, docs/tlsph.md); converges from above
         assert period < measured < 1.04 * period
         assert plate_period_error(scene, out) == pytest.approx(measured / period - 1.0)
-        with open(os.path.join(out, "stats.csv")) as fh:
-            rows = list(csv.DictReader(fh))
+        rows = stats_rows(out)
         energy = np.array([float(r["kinetic_energy"]) + float(r["elastic_energy"]) for r in rows])
         assert energy.max() <= energy[0] * 1.005  # never grows
         assert energy[-1] >= energy[0] * 0.97     # JST removes little
@@ -108,8 +108,7 @@ def test_triaxial_drained_path(comm, mpi_tmp_path, scene_name, p0):
     out = os.path.join(mpi_tmp_path, scene_name)
     run(scene, out, comm=comm, progress=False)
     if comm.rank == 0:
-        with open(os.path.join(out, "stats.csv")) as fh:
-            rows = list(csv.DictReader(fh))
+        rows = stats_rows(out)
         p = np.array([float(r["p_eff"]) for r in rows])
         q = np.array([float(r["q"]) for r in rows])
         strain = np.array([float(r["axial_strain"]) for r in rows])
@@ -123,7 +122,7 @@ def test_triaxial_drained_path(comm, mpi_tmp_path, scene_name, p0):
         else:  # over-consolidated: peaks above the CSL, then softens towards it
             assert q.max() > 1.2 * M * p[np.argmax(q)]
             assert q[-1] < 0.9 * q.max()
-        from parsph.solid.references import triaxial_csl_error, triaxial_end
+        from parsph.verify.solid import triaxial_csl_error, triaxial_end
         from parsph.solid.triaxial import HEADER, write_from_stats
 
         with open(write_from_stats(out)) as fh:
@@ -136,57 +135,24 @@ def test_triaxial_drained_path(comm, mpi_tmp_path, scene_name, p0):
         assert (v[-1] > v[0]) == (p0 == 100e3)  # heavy dilates, light compacts
 
 
-BLOCK = """
-[scene]
-name = "block"
-[domain]
-dim = 2
-particle_size = 0.05
-lo = [-0.2, -0.3]
-hi = [1.4, 1.0]
-[run]
-end_time = 0.02
-max_steps = 40
-[output]
-every = 0.01
-progress = false
-[solid]
-wall_friction = 0.3
-[materials.soil]
-model = "drucker_prager"
-density = 2000.0
-poisson_ratio = 0.3
-young_modulus = 5.0e6
-friction_angle = 30.0
-cohesion = 2.0e3
-hardening = -1.0e3
-[[bodies]]
-name = "block"
-material = "soil"
-shape = "polygon"
-vertices = [[0.0, 0.0], [1.2, 0.0], [1.2, 0.4], [0.3, 0.8], [0.0, 0.8]]
-velocity = [0.5, -0.3]
-[[walls]]
-name = "floor"
-shape = "box"
-lo = [-0.15, -0.15]
-hi = [1.35, 0.0]
-[[constraints]]
-name = "spin"
-kind = "initial"
-profile = "rigid_rotation"
-lo = [0.0, 0.3]
-hi = [1.2, 0.8]
-centre = [0.6, 0.4]
-omega = 3.0
-"""
+BLOCK = scene_text(
+    "block", 0.05, [-0.2, -0.3], [1.4, 1.0], 0.02, 0.01, run={"max_steps": 40},
+    solid={"wall_friction": 0.3},
+    materials={"soil": {"model": "drucker_prager", "density": 2000.0, "poisson_ratio": 0.3,
+                        "young_modulus": 5.0e6, "friction_angle": 30.0, "cohesion": 2.0e3,
+                        "hardening": -1.0e3}},
+    bodies=[{"name": "block", "material": "soil", "shape": "polygon",
+             "vertices": [[0.0, 0.0], [1.2, 0.0], [1.2, 0.4], [0.3, 0.8], [0.0, 0.8]],
+             "velocity": [0.5, -0.3]}],
+    walls=[wall("floor", [-0.15, -0.15], [1.35, 0.0])],
+    constraints=[initial("spin", "rigid_rotation", [0.0, 0.3], [1.2, 0.8], centre=[0.6, 0.4],
+                         omega=3.0)])
 
 
 @pytest.mark.mpi
 def test_deforming_block_one_vs_two_ranks(comm, mpi_tmp_path):
     """The keystone comparison on a deforming, yielding block touching a wall."""
-    path = write(mpi_tmp_path, BLOCK, "block.toml") if comm.rank == 0 else None
-    scene = load_scene(comm.bcast(path))
+    scene = load_shared(comm, mpi_tmp_path, BLOCK, name="block.toml")
     one, two = run_on_one_and_two(comm, scene, mpi_tmp_path)
     if comm.rank == 0:
         a, b = last_frame(one), last_frame(two)

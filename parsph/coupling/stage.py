@@ -10,7 +10,7 @@ of the main set (mixed layout):
    (eq. (47), right-hand side :math:`\mathbf v^{pred}`) and of the PPE, strongly
    coupled: the fluid's divergence sees their velocity after the pressure has acted on
    their true mass, and their own row is the no-penetration of their fluid neighbours
-   (:mod:`parsph.coupling.pressure`); their velocity then gets that reaction
+   (:mod:`parsph.fluid.response`); their velocity then gets that reaction
    (eqs. (45), (48)); type-I solids stay out;
 3. TLSPH corrector on the view: :math:`\dot{\mathbf F}` from the final velocities,
    constitutive update, positions;
@@ -30,7 +30,7 @@ import numpy as np
 
 from decomposition.reduce import global_max, global_min, global_sum
 from parsph.coupling.view import SolidView
-from parsph.materials import PHASE_FLUID, PHASE_SOLID
+from parsph.scene.materials import PHASE_FLUID, PHASE_SOLID
 
 #: Fields the TLSPH step changes on solid rows (copied back to the main set each step).
 #: (``rho0`` and ``rho`` of solid rows in the main set are what the fluid sees; the
@@ -58,7 +58,7 @@ class Coupled:
         self.fluid = IISPH(ctx)  # adds the fluid fields
         ctx.particles.add_field("fluidised", dtype=np.uint8)
         ctx.particles.add_field("ref_count0", dtype=np.int32)  # initial reference neighbours
-        # the strongly coupled PPE (parsph/coupling/pressure.py): per-component inverse
+        # the strongly coupled PPE (parsph/fluid/response.py): per-component inverse
         # true mass of the solids and their acceleration per unit of their own pressure
         ctx.particles.add_field("inv_mass", (ctx.dim,))
         ctx.particles.add_field("a_self", (ctx.dim,))
@@ -133,7 +133,7 @@ class Coupled:
         self._stats["n_failed"] = int(state.get("n_failed", 0))
 
     def renew_preconditioners(self) -> None:
-        """At a sync point (see :func:`parsph.run.run`): the fluid's next solves set up afresh."""
+        """At a sync point (see :func:`parsph.step.run.run`): the fluid's next solves set up afresh."""
         self.fluid.renew_preconditioners()
 
     def state(self) -> dict:

@@ -15,10 +15,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from decomposition.halo import Halo, proximity_halo
-from parsph.materials import PHASE_SOLID, PHASE_WALL
-from parsph.neighbours import build_csr
-from parsph.particles import ParticleSet
-from parsph.run import Context
+from parsph.scene.materials import PHASE_SOLID, PHASE_WALL
+from parsph.core.neighbours import build_csr
+from parsph.core.particles import ParticleSet
+from parsph.core.context import Context
 
 
 @dataclass

@@ -32,7 +32,7 @@ import math
 import numpy as np
 from numba import njit
 
-from parsph.kernel import constants, delta, fac_grad_k
+from parsph.core.kernel import constants, delta, fac_grad_k
 
 __all__ = ["strain_rate", "viscosity"]
 

@@ -35,11 +35,12 @@ import numpy as np
 
 from decomposition.numbering import global_offset
 from decomposition.reduce import global_any, global_max, global_min, global_sum
-from parsph.coupling import pressure
-from parsph.fluid import assembly, rheology
-from parsph.contact import wall_contact
+from parsph.fluid import response
+from parsph.fluid import assembly, rheology, viscous
+from parsph.fluid.ppe import ppe_csr
+from parsph.core.contact import wall_contact
 from parsph.fluid.walls import wall_slip
-from parsph.materials import PHASE_FLUID, PHASE_WALL
+from parsph.scene.materials import PHASE_FLUID, PHASE_WALL
 from solvers.csr import scale_rows, sort_neighbours_by_row, unit_diagonal
 
 #: BoomerAMG defaults of the PPE beyond the smoother every system gets
@@ -63,7 +64,7 @@ def lattice_density_ratio(h_over_d: float, dim: int) -> float:
     (Koshizuka & Oka 1996); otherwise a fluid initially at rest on the lattice would be
     driven by the lattice's own summation error.
     """
-    from parsph.kernel import w_array
+    from parsph.core.kernel import w_array
 
     reach = int(np.ceil(2.0 * h_over_d))
     k = np.arange(-reach, reach + 1)
@@ -77,7 +78,7 @@ class Coupling:
 
     ``inv_mass``: inverse true mass (1/kg) of the owned rows per component, zero but for
     solid rows and zero on a component a ``[[constraints]]`` box holds: the solid's
-    response to the pressure in the strongly coupled PPE (:mod:`parsph.coupling.pressure`);
+    response to the pressure in the strongly coupled PPE (:mod:`parsph.fluid.response`);
     ``mass``: the mass of every row (owned and halo) as the fluid sees it — a solid
     particle of volume V counts as V rho_f (fixed wall ghost particles of the fluid's
     density, Adami et al. 2012), so the fluid's summation density, Laplacian and
@@ -287,7 +288,7 @@ class IISPH:
         t0 = time.perf_counter()
         ptr, cols, vals = self._csr_buffers(visc, assembly.csr_capacity(
             fluid, solid, row, indptr, dim, not morris))
-        nnz, rhs = assembly.viscous_csr(
+        nnz, rhs = viscous.viscous_csr(
             p["x"], p["v"], m, p["rho"], p["nu"], fluid, solid, p["wall_slip"], row,
             indptr, indices, h, dim, dt, g, morris, visc.offset // dim, ptr, cols, vals)
         visc.assemble_csr(ptr, cols[:nnz], vals[:nnz])
@@ -357,7 +358,7 @@ class IISPH:
         gamma = rheology.strain_rate(x, vel, m, rho, fluid, slip, indptr, indices, h, dim)
         self._viscosity(ctx, gamma, fluid[:n])
         if coupled:  # the solids' acceleration per unit of their own pressure
-            p["a_self"][:n] = pressure.self_response(x, m, rho, rho0, fluid, solid,
+            p["a_self"][:n] = response.self_response(x, m, rho, rho0, fluid, solid,
                                                      p["inv_mass"], indptr, indices, h, dim)
         t_asm += time.perf_counter() - t0
 
@@ -385,12 +386,12 @@ class IISPH:
         elif explicit:  # zeta << 1: forward Euler on the operator of eq. (34), no matrix
             self._halo(ctx, ["nu"])
             t0 = time.perf_counter()
-            assembly.ghost_velocity(x, p["v"], fluid, slip, indptr, indices, h, dim,
+            viscous.ghost_velocity(x, p["v"], fluid, slip, indptr, indices, h, dim,
                                     p["v_ghost"])
             t_asm += time.perf_counter() - t0
             self._halo(ctx, ["v_ghost"])
             t0 = time.perf_counter()
-            vexp = assembly.viscous_explicit(x, p["v"], p["v_ghost"], m, rho, p["nu"], fluid,
+            vexp = viscous.viscous_explicit(x, p["v"], p["v_ghost"], m, rho, p["nu"], fluid,
                                              slip, indptr, indices, h, dim, dt, g, morris)
             vs[:n][own_fluid] = vexp[own_fluid]
             t_asm += time.perf_counter() - t0
@@ -412,15 +413,15 @@ class IISPH:
             fluid, solid, row, indptr, 1, False))
         expansion = self.num.density_correction == "both" or (
             self.num.density_correction == "auto" and not confined)
-        nnz, rhs = assembly.ppe_csr(
+        nnz, rhs = ppe_csr(
             x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt, alpha, d,
             self.num.ppe_laplacian == "corrected", expansion, ppe.offset, ptr, cols, vals)
         if coupled:  # the solid-response term (strong coupling, docs/coupling.md)
             near = self._csr_buffers(ppe, nnz, key="near")
-            n_near = pressure.add_near_response(
+            n_near = response.add_near_response(
                 x, m, rho, rho0, fluid, free, solid, row, p["inv_mass"], p["a_self"], indptr,
                 indices, h, dim, d, ppe.offset, ptr, cols, vals, *near)
-            blocks = pressure.response_blocks(x, m, rho, rho0, fluid, free, solid, row,
+            blocks = response.response_blocks(x, m, rho, rho0, fluid, free, solid, row,
                                               p["inv_mass"], indptr, indices, h, dim, d)
         # every row scaled to a unit diagonal: a boundary row barely in contact has a
         # diagonal of 1e-9 one step and 1e-7 the next, and a lagged set-up then took 60
@@ -479,7 +480,7 @@ class IISPH:
         if own_solid.any():  # eq. (48): the reaction of the fluid pressure, eq. (45)
             mark = np.zeros(len(fluid))
             mark[:n][own_solid] = solid[:n][own_solid]
-            force = pressure.solid_pressure_force(x, p["p"], m, rho, rho0, fluid, mark,
+            force = response.solid_pressure_force(x, p["p"], m, rho, rho0, fluid, mark,
                                                   indptr, indices, h, dim)
             p["v"][:n][own_solid] = vs[:n][own_solid] \
                 + dt * p["inv_mass"][:n][own_solid] * force[own_solid]

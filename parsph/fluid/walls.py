@@ -16,7 +16,7 @@ def wall_slip(scene, body, is_wall) -> np.ndarray:
 
     Parameters
     ----------
-    scene : parsph.scene.Scene
+    scene : parsph.scene.loader.Scene
     body : numpy.ndarray of int, shape (N,)
         Body/wall index of every row (the ``body`` field).
     is_wall : numpy.ndarray of bool, shape (N,)

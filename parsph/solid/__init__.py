@@ -3,7 +3,7 @@
 Constitutive models act on one material point and are plain numba functions, so they
 can be tested alone and called from the particle loops:
 
-- :mod:`parsph.tensor` (shared with the fluid) -- 3x3 helpers: symmetric
+- :mod:`parsph.core.tensor` (shared with the fluid) -- 3x3 helpers: symmetric
   eigen-decomposition (closed form with a Jacobi fall-back), tensor
   logarithm/exponential of symmetric positive-definite matrices, determinant, inverse.
 - :mod:`parsph.solid.hencky` -- Hencky elasticity on the logarithmic strain and the

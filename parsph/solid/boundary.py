@@ -7,7 +7,7 @@ r"""Solid boundary conditions (section 3.1, "as in Morikawa and Asai (2021)").
   expressions: ``uniform``, ``cantilever_mode1`` (first bending mode of a clamped-free
   beam, Gray, Monaghan & Swift 2001), ``rigid_rotation`` (about the z axis).
 - Wall contact: non-penetration plus Coulomb friction against wall particles (phase 2),
-  enforced on the velocity after the momentum update (:func:`parsph.contact.wall_contact`).
+  enforced on the velocity after the momentum update (:func:`parsph.core.contact.wall_contact`).
 """
 from __future__ import annotations
 

@@ -60,7 +60,7 @@ import math
 import numpy as np
 from numba import njit
 
-from parsph.tensor import _congruence6, _eig6, _recon6, _store6, _sym6
+from parsph.core.tensor import _congruence6, _eig6, _recon6, _store6, _sym6
 
 M_TABLE1 = 1.0
 """Critical state slope chosen for the Table 1 soil (the paper does not give it):

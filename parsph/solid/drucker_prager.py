@@ -62,7 +62,7 @@ import math
 
 from numba import njit
 
-from parsph.tensor import mean_j2
+from parsph.core.tensor import mean_j2
 
 _SQRT3 = math.sqrt(3.0)
 _YIELD_RTOL = 1e-12

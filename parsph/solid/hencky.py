@@ -31,7 +31,7 @@ import math
 import numpy as np
 from numba import njit
 
-from parsph.tensor import _congruence6, _eig6, _recon6, _store6, _sym6, det3
+from parsph.core.tensor import _congruence6, _eig6, _recon6, _store6, _sym6, det3
 
 
 @njit(cache=True)

@@ -4,7 +4,7 @@ Every loop runs over the owned rows ``i < n`` of a CSR list built from the refer
 positions X (fixed for the run) and skips neighbours that are not solid (``sel[j]``
 false: walls, fluid). Pair quantities follow PySPH's names: ``RIJ = X_i - X_j``,
 ``DWIJ = F(|RIJ|) RIJ`` the uncorrected kernel gradient :math:`\nabla W(\mathbf R_{ij}, h)`
-with respect to X_i (:func:`parsph.kernel.fac_grad`).
+with respect to X_i (:func:`parsph.core.kernel.fac_grad`).
 
 Corrected gradient (Randles & Libersky 1996; Bonet & Lok 1999):
 :math:`\tilde\nabla W(\mathbf R_{ij}) = \mathbf L_i \nabla W(\mathbf R_{ij})` with
@@ -27,9 +27,9 @@ import math
 import numpy as np
 from numba import njit
 
-from parsph.kernel import constants, fac_grad
-from parsph.kernel import w as _w
-from parsph.tensor import eigh3
+from parsph.core.kernel import constants, fac_grad
+from parsph.core.kernel import w as _w
+from parsph.core.tensor import eigh3
 
 
 @njit(cache=True)
@@ -96,7 +96,7 @@ def correction_matrices(X, vol, sel, n, indptr, indices, h, dim, floor, L):
 
 @njit(cache=True)
 def pair_factors(X, sel, n, indptr, indices, h, dim):
-    r"""Per pair, :math:`F(|\mathbf R_{ij}|) = W'(R)/R` (:func:`parsph.kernel.fac_grad`), 0 for
+    r"""Per pair, :math:`F(|\mathbf R_{ij}|) = W'(R)/R` (:func:`parsph.core.kernel.fac_grad`), 0 for
     pairs with a non-solid end: the reference configuration is fixed, so the kernel is
     evaluated once (PERF-NOTES: 8 bytes per pair, as fast as storing the gradient)."""
     out = np.zeros(indices.shape[0])

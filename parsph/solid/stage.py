@@ -27,9 +27,9 @@ import numpy as np
 from decomposition import raise_if_any
 from decomposition.reduce import global_max, global_sum
 from parsph.errors import NumericalError
-from parsph.materials import PHASE_SOLID
+from parsph.scene.materials import PHASE_SOLID
 from parsph.solid import kernels
-from parsph.contact import wall_contact
+from parsph.core.contact import wall_contact
 from parsph.solid.boundary import initial_velocity, velocity_masks
 from parsph.solid.update import CAM_CLAY, C, material_table, stress_terms, \
     update_particles, wave_speed
@@ -230,7 +230,7 @@ class TLSPH:
 
     def _contact(self, ctx) -> int:
         """Collective: wall particles near this rank's solids, then :func:`wall_contact`."""
-        from parsph.neighbours import build_csr
+        from parsph.core.neighbours import build_csr
 
         p, n = ctx.particles, ctx.particles.n_owned
         solid = self.sel[:n]

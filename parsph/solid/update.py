@@ -25,7 +25,7 @@ from parsph.solid.cam_clay import P_MIN, mcc_return_inplace, mcc_trial_into
 from parsph.solid.drucker_prager import dp_params, dp_return_coeffs_inplace
 from parsph.solid.hencky import (eps_from_tau_kmu, hencky_tau_into, lame_from_young,
                                  nominal_stress_into, trial_state_into)
-from parsph.tensor import det3, inv3_into
+from parsph.core.tensor import det3, inv3_into
 
 HENCKY, DRUCKER_PRAGER, CAM_CLAY = 0, 1, 2
 #: Columns of the material table.
@@ -40,7 +40,7 @@ def material_table(materials) -> np.ndarray:
     For Cam-Clay K and mu are pressure dependent and computed per particle; the row holds
     nu, kappa, lambda and M.
     """
-    from parsph.materials import CamClay, DruckerPrager, Hencky
+    from parsph.scene.materials import CamClay, DruckerPrager, Hencky
 
     tab = np.zeros((max(len(materials), 1), len(COLS)))
     for k, mat in enumerate(materials):

@@ -1,0 +1,73 @@
+"""``parsph check``: what a run would build, without running it."""
+from __future__ import annotations
+
+import numpy as np
+
+from decomposition.box import Box
+from decomposition.exchange import migrate
+from decomposition.partition import RCB
+from decomposition.reduce import gather_to_root, global_sum
+from parsph.scene.budget import check_budget
+from parsph.scene.geometry import generate
+from parsph.core.kernel import smoothing_length, support_radius
+from parsph.scene.materials import PHASE_FLUID, PHASE_SOLID, PHASE_WALL
+from parsph.scene.params_probes import fields_of
+from parsph.step.pipeline import INFRASTRUCTURE, plan
+from parsph.scene.loader import geometry_warnings
+
+
+def check(comm, scene) -> str:
+    """Collective: a report of stages, particle counts per rank and memory (on rank 0)."""
+    specs = plan(scene)
+    est = check_budget(comm, scene, specs)
+    d = scene.domain.particle_size
+    h = smoothing_length(d)
+    fields = generate(comm, scene)
+    box = Box(tuple(scene.domain.lo), tuple(scene.domain.hi), tuple(scene.domain.periodic))
+    rcb = RCB.build(comm, fields["x"], box)
+    fields = migrate(comm, fields, rcb.owner(fields["x"]))
+    phase = fields["phase"]
+    counts = global_sum(comm, np.array([(phase == k).sum() for k in
+                                        (PHASE_SOLID, PHASE_FLUID, PHASE_WALL)], dtype=np.int64))
+    per_rank = gather_to_root(comm, len(phase))
+    if comm.rank != 0:
+        return ""
+    total = int(counts.sum())
+    mib = 2.0 ** 20
+    lines = [
+        f"scene '{scene.name}' ({scene.source})",
+        f"  {scene.domain.dim}D, particle size d = {d:g} m, h = 1.2 d = {h:g} m, "
+        f"support 2h = {support_radius(h):g} m",
+        f"  mode {scene.run.mode}, end time {scene.run.end_time:g} s, "
+        f"frames every {scene.output.every:g} s",
+        "stages of one step:",
+    ]
+    rows = [(n, doc) for n, doc in INFRASTRUCTURE] + [(s.name, s.doc) for s in specs]
+    lines += [f"  {name:12s} {doc}" for name, doc in rows]
+    lines += [
+        f"particles: {total} (solid {int(counts[0])}, fluid {int(counts[1])}, "
+        f"wall {int(counts[2])})",
+        "per rank: " + ", ".join(f"{r}: {n}" for r, n in enumerate(per_rank)),
+        f"memory (estimate): {total * est['bytes_per_particle'] / mib:.1f} MiB total, "
+        f"{total * est['bytes_per_particle'] / mib / comm.size:.1f} MiB per rank "
+        f"({est['bytes_per_particle']} B per particle)"
+        + (f"; this node has {est['node_memory'] / 2**30:.1f} GiB" if est["node_memory"] else ""),
+    ]
+    lines += _probe_lines(scene)
+    lines += [f"warning: {text}" for text in geometry_warnings(scene)]
+    return "\n".join(lines)
+
+
+
+def _probe_lines(scene) -> list[str]:
+    """One line per probe: type, stations, measure, fields, interval (DIR/probes.csv)."""
+    if not scene.probes:
+        return []
+    out = ["probes (DIR/probes.csv):"]
+    for pr in scene.probes:
+        n = pr.points if pr.type == "line" else 1
+        what = "integrals" if pr.type == "box" else pr.measure
+        every = pr.every or scene.output.probe_every or scene.output.every
+        out.append(f"  {pr.name:12s} {pr.type}, {n} station{'s' * (n > 1)}, {what} over "
+                   f"{'+'.join(pr.phases)}: {', '.join(fields_of(pr, scene))}; every {every:g} s")
+    return out

@@ -1,0 +1,122 @@
+r"""Contact of a particle with the particles of a boundary (walls, or the soil for a fluid).
+
+One kernel for both phases: the TLSPH solid against wall particles (non-penetration and
+Coulomb friction, ``solid.wall_friction``), and the IISPH fluid's free-surface particles
+against walls and soil (``fluid.surface_wall_contact``; the PPE gives them p = 0 and does
+not hold them off a boundary, docs/iisph.md). Imports no phase, so a scene loads only
+the stages it needs.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from parsph.core.kernel import fac_grad, w
+
+__all__ = ["wall_contact"]
+
+
+@njit(cache=True)
+def wall_contact(x, v, rows, vrows, wall, vw, indptr, indices, h, d, dim, mu, push, mu_w):
+    r"""Non-penetration and Coulomb friction against boundary particles, in place on ``v``.
+
+    For each ``k``, the particle at ``x[rows[k]]`` (velocity ``v[vrows[k]]``) against its
+    neighbours ``j`` in CSR row ``rows[k]`` with ``wall[j] = 1`` (all within 2h of the
+    current positions), which move with ``vw[j]`` (zero for fixed walls):
+
+    - outward normal :math:`\mathbf n = -\sum_w \nabla W(\mathbf x_k - \mathbf x_w)`
+      normalised (points from the boundary into the body);
+    - gap :math:`\delta = \min_w (\mathbf x_k - \mathbf x_w)\cdot\mathbf n`; a particle
+      is in contact when :math:`\delta < d` (one particle spacing: a body resting on a
+      wall has :math:`\delta = d`);
+    - velocity relative to the boundary :math:`\mathbf v_k - \bar{\mathbf v}_w`
+      (:math:`\bar{\mathbf v}_w` the kernel-weighted mean of the partners'); in contact
+      and approaching (:math:`v_n < 0`) its normal part is removed,
+      :math:`\Delta v_n = -v_n`, and its tangential part is reduced by at most
+      :math:`\mu_k (\Delta v_n + \max(\mathbf p_k\cdot\mathbf n, 0))` (Coulomb: the
+      friction impulse is bounded by mu times the normal impulse; sticking when it would
+      reverse the slip); :math:`\mu_k` is the kernel-weighted mean of the partners'
+      ``mu_w[j]`` (each wall's own coefficient, ``walls.N.friction``: a rough floor
+      beside smooth side walls), or ``mu[k]`` where ``mu_w`` is negative (the caller
+      sets one or the other for all partners). ``push[k]`` is a velocity change of this
+      step by which the boundary already holds the particle (the fluid's pressure
+      impulse; zero for the solid).
+
+    Returns the number of particles in contact.
+    """
+    count = 0
+    nv = np.zeros(3)
+    vb = np.zeros(3)
+    vr = np.zeros(3)
+    for k in range(rows.shape[0]):
+        r = rows[k]
+        i = vrows[k]
+        nv[:] = 0.0
+        vb[:] = 0.0
+        wsum = 0.0
+        musum = 0.0
+        for q in range(indptr[r], indptr[r + 1]):
+            j = indices[q]
+            if not wall[j]:
+                continue
+            r2 = 0.0
+            for a in range(dim):
+                r2 += (x[r, a] - x[j, a]) ** 2
+            dist = math.sqrt(r2)
+            f = -fac_grad(dist, h, dim)
+            wt = w(dist, h, dim)
+            wsum += wt
+            musum += wt * mu_w[j]
+            for a in range(dim):
+                nv[a] += f * (x[r, a] - x[j, a])
+                vb[a] += wt * vw[j, a]
+        if wsum == 0.0:
+            continue
+        norm = 0.0
+        for a in range(dim):
+            norm += nv[a] * nv[a]
+        norm = math.sqrt(norm)
+        if norm == 0.0:
+            continue
+        for a in range(dim):
+            nv[a] /= norm
+            vb[a] /= wsum
+        gap = 1e300
+        for q in range(indptr[r], indptr[r + 1]):
+            j = indices[q]
+            if not wall[j]:
+                continue
+            g = 0.0
+            for a in range(dim):
+                g += (x[r, a] - x[j, a]) * nv[a]
+            gap = min(gap, g)
+        if gap >= d * (1.0 + 1e-6):
+            continue
+        vn = 0.0
+        pn = 0.0
+        for a in range(dim):
+            vr[a] = v[i, a] - vb[a]
+            vn += vr[a] * nv[a]
+            pn += push[k, a] * nv[a]
+        if vn >= 0.0 and pn <= 0.0:
+            continue
+        count += 1
+        dvn = max(pn, 0.0)
+        if vn < 0.0:
+            dvn -= vn
+            for a in range(dim):
+                v[i, a] -= vn * nv[a]
+                vr[a] -= vn * nv[a]
+            vn = 0.0
+        vt2 = 0.0
+        for a in range(dim):
+            vt2 += (vr[a] - vn * nv[a]) ** 2
+        vt = math.sqrt(vt2)
+        muk = musum / wsum if musum >= 0.0 else mu[k]
+        if vt > 0.0 and muk > 0.0:
+            fac = max(0.0, 1.0 - muk * dvn / vt)
+            for a in range(dim):  # the tangential part only
+                v[i, a] -= (1.0 - fac) * (vr[a] - vn * nv[a])
+    return count

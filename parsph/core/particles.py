@@ -1,0 +1,98 @@
+"""Struct-of-arrays particle store: owned rows first, halo copies after.
+
+Every field is one numpy array whose first axis is the particle: scalars ``(N,)``,
+vectors ``(N, dim)``, tensors ``(N, dim, dim)``. Physics loops over ``[:n_owned]``;
+rows ``n_owned:`` are halo copies refreshed by :mod:`decomposition.halo`. ``id`` (int64)
+is global and stable for a particle's life.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+#: Fields every particle has: name -> (trailing shape as a function of dim, dtype).
+CORE_FIELDS = {
+    "id": (lambda dim: (), np.int64),
+    "x": (lambda dim: (dim,), np.float64),
+    "v": (lambda dim: (dim,), np.float64),
+    "m": (lambda dim: (), np.float64),
+    "phase": (lambda dim: (), np.uint8),
+    "material": (lambda dim: (), np.int16),
+    "body": (lambda dim: (), np.int16),
+}
+
+
+#: The phase codes of the ``phase`` field (section 3.3: a solid becomes a fluid).
+PHASE_SOLID, PHASE_FLUID, PHASE_WALL = 0, 1, 2
+
+
+class ParticleSet:
+    """Named arrays of one rank's particles.
+
+    Parameters
+    ----------
+    dim : int
+        2 or 3.
+    fields : dict of str to ndarray
+        Owned rows only; all arrays have the same first dimension.
+    """
+
+    def __init__(self, dim: int, fields: dict):
+        self.dim = dim
+        self.data = {}
+        self.n_owned = 0
+        self.n_halo = 0
+        self.set_owned(fields)
+
+    # -- rows
+    @property
+    def n_total(self) -> int:
+        return self.n_owned + self.n_halo
+
+    def set_owned(self, fields: dict) -> None:
+        """Replace all rows with ``fields`` (owned only; the halo is dropped)."""
+        lengths = {len(a) for a in fields.values()}
+        if len(lengths) > 1:
+            raise ValueError(f"particle fields of unequal length: "
+                             f"{ {k: len(a) for k, a in fields.items()} }")
+        self.data = {k: np.ascontiguousarray(a) for k, a in fields.items()}
+        self.n_owned = lengths.pop() if lengths else 0
+        self.n_halo = 0
+
+    def set_halo(self, halo: dict) -> None:
+        """Append halo rows; fields absent from ``halo`` get zero rows."""
+        n = len(next(iter(halo.values()))) if halo else 0
+        for name, arr in self.data.items():
+            own = arr[: self.n_owned]
+            if n == 0:  # no halo (one rank, or isolated): no copy of the owned rows
+                self.data[name] = own
+                continue
+            extra = halo.get(name)
+            if extra is None:
+                extra = np.zeros((n,) + own.shape[1:], dtype=own.dtype)
+            self.data[name] = np.concatenate([own, extra.astype(own.dtype, copy=False)])
+        self.n_halo = n
+
+    def owned_fields(self, names=None) -> dict:
+        names = self.data.keys() if names is None else names
+        return {k: self.data[k][: self.n_owned] for k in names}
+
+    # -- fields
+    def add_field(self, name: str, shape=(), dtype=np.float64, fill=0) -> np.ndarray:
+        """Allocate a field (all rows) if absent; return it."""
+        if name not in self.data:
+            self.data[name] = np.full((self.n_total,) + tuple(shape), fill, dtype=dtype)
+        return self.data[name]
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self.data[name]
+
+    def __setitem__(self, name: str, value: np.ndarray) -> None:
+        if len(value) != self.n_total:
+            raise ValueError(f"field '{name}' has {len(value)} rows, the set has {self.n_total}")
+        self.data[name] = value
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.data
+
+    def nbytes(self) -> int:
+        return sum(a.nbytes for a in self.data.values())

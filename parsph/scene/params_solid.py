@@ -1,0 +1,95 @@
+"""Scene tables of the TLSPH solid: ``[solid]`` numerics and ``[[constraints]]``.
+
+Plain validated dataclasses (no physics imported): owned by the solid stage. See
+``docs/tlsph.md`` for the choices behind the defaults.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from parsph.errors import SceneError
+from parsph.scene.schema import spec
+
+#: Named initial-velocity profiles of ``[[constraints]]`` with ``kind = "initial"``.
+PROFILES = ("uniform", "cantilever_mode1", "rigid_rotation")
+
+
+@dataclass(frozen=True, kw_only=True)
+class SolidNumerics:
+    """``[solid]``: numerical parameters of the TLSPH solid (section 3)."""
+
+    cfl: float = spec(0.5, doc="C_CFL^s of eq. (49): dt <= C d / c_p", gt=0.0, le=1.0)
+    jst_eps2: float = spec(0.0, doc="JST coefficient eps(2) of eq. (9) (Laplacian term)", ge=0.0)
+    jst_eps4: float = spec(1.0 / 128.0, doc="JST coefficient eps(4) of eq. (9) (bi-Laplacian "
+                           "term); not given by the paper, see docs/tlsph.md", ge=0.0)
+    hourglass: float = spec(0.0, doc="hourglass-control coefficient alpha of Ganzenmueller "
+                            "(2015), 0 = off (elastic bodies: 1)", ge=0.0)
+    correction_floor: float = spec(0.1, doc="smallest eigenvalue kept in the kernel-gradient "
+                                   "correction matrix (relative to a full interior support)",
+                                   gt=0.0, le=1.0)
+    wall_friction: float = spec(0.0, doc="Coulomb friction coefficient solid/wall (-)", ge=0.0)
+    max_substeps: int = spec(1, doc="coupled scenes with fluid: up to this many TLSPH sub-steps "
+                             "per coupled step, which then takes the fluid's CFL step (eq. "
+                             "(49)) instead of the solid's; 1 = one step for both (docs/coupling.md)",
+                             ge=1, le=1000)
+    ambient_pressure: float = spec(0.0, doc="uniform external pressure on every free surface "
+                                   "(Pa), e.g. the cell pressure of a triaxial test", ge=0.0)
+    triaxial_csv: bool = spec(False, doc="specimen averages of a triaxial test (axial strain, "
+                              "p', q, v, M) in stats.csv and DIR/triaxial.csv (docs/tlsph.md)")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Constraint:
+    """``[[constraints]]``: Dirichlet conditions and initial velocities of solid particles.
+
+    A constraint selects the solid particles whose *reference* position X lies in the
+    box ``lo..hi``. ``kind = "velocity"`` prescribes the velocity components named in
+    ``axes`` at every step (``velocity = [0, 0]`` fixes them); ``kind = "initial"`` sets
+    the initial velocity once from a named ``profile``.
+    """
+
+    name: str = spec(doc="constraint name")
+    kind: str = spec("velocity", doc="velocity (prescribed every step) | initial (set once)",
+                     choices=("velocity", "initial"))
+    lo: tuple[float, ...] = spec(doc="lower corner of the selection box in X (m)")
+    hi: tuple[float, ...] = spec(doc="upper corner of the selection box in X (m)")
+    velocity: tuple[float, ...] = spec((), doc="prescribed or uniform velocity (m/s)")
+    axes: tuple[bool, ...] = spec((), doc="velocity: which components are prescribed "
+                                  "(default all)")
+    profile: str = spec("uniform", doc="initial: uniform | cantilever_mode1 | rigid_rotation",
+                        choices=PROFILES)
+    root: float = spec(0.0, doc="cantilever_mode1: x of the clamped root (m)")
+    length: float = spec(1.0, doc="cantilever_mode1: free length L (m)", gt=0.0)
+    tip_speed: float = spec(0.0, doc="cantilever_mode1: transverse speed at the tip (m/s)")
+    centre: tuple[float, ...] = spec((), doc="rigid_rotation: centre (m)")
+    omega: float = spec(0.0, doc="rigid_rotation: angular speed about the z axis (rad/s)")
+
+
+def check_solid(scene, source: str) -> None:
+    """Cross-check ``[solid]`` and ``[[constraints]]`` against the scene (called on load).
+
+    Raises
+    ------
+    SceneError
+        Naming the key, for vectors of the wrong length or empty selection boxes.
+    """
+    dim = scene.domain.dim
+    names = set()
+    for i, c in enumerate(scene.constraints):
+        key = f"constraints[{i}]"
+        if c.name in names:
+            raise SceneError(f"{source}: key '{key}.name': duplicate constraint name '{c.name}'")
+        names.add(c.name)
+        for field, vec, required in (("lo", c.lo, True), ("hi", c.hi, True),
+                                     ("velocity", c.velocity, c.kind == "velocity"),
+                                     ("axes", c.axes, False),
+                                     ("centre", c.centre, c.profile == "rigid_rotation"
+                                      and c.kind == "initial")):
+            if (vec or required) and len(vec) != dim:
+                raise SceneError(f"{source}: key '{key}.{field}': needs {dim} entries "
+                                 f"(domain.dim = {dim}), got {len(vec)}")
+        if any(h <= l for l, h in zip(c.lo, c.hi)):
+            raise SceneError(f"{source}: key '{key}.hi': must be above {key}.lo on every axis")
+        if c.kind == "initial" and c.profile == "uniform" and len(c.velocity) != dim:
+            raise SceneError(f"{source}: key '{key}.velocity': a uniform initial profile needs "
+                             f"{dim} numbers")

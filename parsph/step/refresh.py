@@ -1,0 +1,189 @@
+"""After each step: the state checked, particles migrated to their owners (the partition
+rebuilt when unbalanced), the halo and the neighbour lists rebuilt."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from decomposition import raise_if_any
+from decomposition.exchange import migrate
+from decomposition.halo import Halo, coupled_halo
+from decomposition.partition import RCB, imbalance
+from decomposition.reduce import global_any, global_sum
+from parsph.core.neighbours import build_csr
+from parsph.core.particles import PHASE_FLUID, PHASE_SOLID, PHASE_WALL
+from parsph.errors import NumericalError
+
+
+def timed(ctx, name, fn, *args):
+    t0 = time.perf_counter()
+    result = fn(*args)
+    ctx.timers[name] = ctx.timers.get(name, 0.0) + time.perf_counter() - t0
+    return result
+
+
+def check_state(ctx) -> None:
+    """Collective: stop every rank with one message on NaN/inf or a particle out of the box."""
+    p = ctx.particles
+    n = p.n_owned
+    error = None
+    for name in ("x", "v"):
+        bad = ~np.isfinite(p[name][:n]).all(axis=1)
+        if bad.any():
+            i = int(np.argmax(bad))
+            error = NumericalError(
+                f"non-finite {name} of particle id {int(p['id'][i])} at step {ctx.step}, "
+                f"t = {ctx.time:.6g} s (rank {ctx.comm.rank}); the last good frame and stats "
+                f"are kept; try a smaller time step (run.cfl or run.dt)")
+            break
+    if error is None:
+        out = ctx.box.outside(p["x"][:n])
+        if out.any():
+            i = int(np.argmax(out))
+            error = NumericalError(
+                f"particle id {int(p['id'][i])} left the domain at step {ctx.step}, "
+                f"t = {ctx.time:.6g} s, x = {np.array2string(p['x'][i], precision=4)} "
+                f"(rank {ctx.comm.rank}); enlarge domain.lo/domain.hi or check the walls")
+    raise_if_any(ctx.comm, error)
+
+
+#: Work of a wall particle relative to a fluid or solid one, for the partition. A wall
+#: row is binned and has a neighbour list, but it is no unknown of the PPE or viscous
+#: systems and no TLSPH row; the kernels only extrapolate its pressure and velocity.
+#: Counting walls as whole particles gave the rank with the dam-break column 1.3 % more
+#: PPE rows than the mean (docs/scaling.md).
+WALL_WORK = 0.25
+
+
+def _work(phase) -> np.ndarray:
+    """Partition weight of each row (1, or :data:`WALL_WORK` for walls)."""
+    return np.where(phase == PHASE_WALL, WALL_WORK, 1.0)
+
+
+def _unbalanced(counts, tolerance: float) -> bool:
+    """The largest of the ranks' ``counts`` exceeds ``tolerance`` times their mean, by at
+    least one row (3 rows on 2 ranks are as balanced as they can be)."""
+    total, largest = int(counts.sum()), int(counts.max())
+    return largest * len(counts) > tolerance * total and largest - total / len(counts) >= 1.0
+
+
+def _distribute(ctx, force: bool = False) -> None:
+    """Migrate particles to their owners; rebuild the partition when unbalanced.
+
+    The partition follows ``ctx.key``: current positions ``x`` (fluids: particles
+    migrate as they move), or reference positions ``X`` (TLSPH solids: ownership, halo
+    and neighbour lists are fixed for the whole run). It balances work, not particles:
+    walls weigh :data:`WALL_WORK`. In the mixed layout (coupled scenes) each kind has a
+    partition of its own: the solids by ``X``, the walls and the fluid by ``x``; the
+    solids' and the fluid's are re-partitioned when their counts exceed
+    ``run.rebalance_tolerance`` times the mean (docs/decomposition.md).
+    """
+    p, comm, key = ctx.particles, ctx.comm, ctx.key
+    owned = p.owned_fields()
+    if ctx.box.periodic and any(ctx.box.periodic):
+        # a TLSPH solid keeps its unwrapped x, continuous with its reference X (its
+        # neighbours across the boundary are images, shifted in x and X alike)
+        keep = owned["phase"] == PHASE_SOLID if ctx.layout != "current" else None
+        wrapped = ctx.box.wrap(owned["x"])
+        owned["x"] = wrapped if keep is None else np.where(keep[:, None], owned["x"], wrapped)
+    tolerance = ctx.scene.run.rebalance_tolerance
+    work = _work(owned["phase"])
+    if ctx.layout == "mixed":  # solids by X, walls and fluid by x, each balanced on its own
+        phase, x = owned["phase"], owned["x"]
+        solid, wall = phase == PHASE_SOLID, phase == PHASE_WALL
+        fluid = ~solid & ~wall
+        # the walls do not move: a partition of their own, built once. One partition for
+        # walls and fluid balanced their summed work, not the fluid: aso_like at d = 4 m
+        # had 6 and 1,684 fluid rows on its 2 ranks (docs/decomposition.md)
+        if force or ctx.rcb_wall is None:
+            ctx.rcb_wall = RCB.build(comm, x[wall], ctx.box)
+        # per rank, in one reduction: the solids it owns, and the fluid rows it would own
+        # under the present cuts (those that fluidised in the last step are still on the
+        # rank that held them as solids)
+        counts = np.zeros((2, comm.size), dtype=np.int64)
+        counts[0, comm.rank] = solid.sum()
+        to = None if ctx.rcb is None else ctx.rcb.owner(x[fluid])
+        if to is None:
+            counts[1, comm.rank] = fluid.sum()
+        else:
+            counts[1] = np.bincount(to, minlength=comm.size)
+        counts = global_sum(comm, counts)
+        # the solids' partition is fixed by X, but the phase change empties the ranks
+        # that hold the failing toe: rebuilt when their counts drift past the tolerance
+        if force or ctx.rcb_ref is None or _unbalanced(counts[0], tolerance):
+            ctx.solids_moved = ctx.rcb_ref is not None
+            ctx.rcb_ref = RCB.build(comm, owned["X"][solid], ctx.box)
+        n_fluid = int(counts[1].sum())
+        if force or to is None or (n_fluid and _unbalanced(counts[1], tolerance)):
+            # before any soil fluidises: the walls' cuts (a fluid row's owner is defined)
+            ctx.rcb = RCB.build(comm, x[fluid], ctx.box) if n_fluid else ctx.rcb_wall
+            to = ctx.rcb.owner(x[fluid])
+        dest = np.empty(len(phase), dtype=np.int32)
+        dest[solid] = ctx.rcb_ref.owner(owned["X"][solid])
+        dest[wall] = ctx.rcb_wall.owner(x[wall])
+        dest[fluid] = to
+        p.set_owned(migrate(comm, owned, dest))
+        return
+    rebuilt = force or ctx.rcb is None or imbalance(comm, float(work.sum())) > tolerance
+    if rebuilt:
+        ctx.rcb = RCB.build(comm, owned[key], ctx.box, weights=work)
+    dest = ctx.rcb.owner(owned[key])
+    if ctx.skin > 0 and not rebuilt and not ctx.sync_point and ctx.step % ctx.migrate_every:
+        _keep_strays(ctx, owned[key], dest)
+    p.set_owned(migrate(comm, owned, dest))
+
+
+def _keep_strays(ctx, x, dest) -> None:
+    """Collective: lagged migration. Rows that left their rank's sub-box stay (``dest`` is
+    set to this rank) while every stray on every rank is within ``ctx.skin`` of its
+    owner's sub-box; the halo is ``ctx.skin`` wider, so every neighbour within 2h of a
+    stray still reaches it. Unchanged rows keep the PPE's AMG set-up
+    (``fluid.preconditioner_reuse``); strays move every ``ctx.migrate_every`` steps."""
+    me = ctx.comm.rank
+    stray = np.nonzero(dest != me)[0]
+    lo, hi = ctx.rcb.subbox(me)
+    gap = np.maximum(0.0, np.maximum(lo - x[stray], x[stray] - hi))
+    far = bool(((gap * gap).sum(axis=1) > ctx.skin * ctx.skin).any())
+    if not global_any(ctx.comm, far):
+        dest[stray] = me
+
+
+def refresh(ctx, force_partition: bool = False) -> None:
+    """Migrate, refresh the halo, rebuild neighbour lists (infrastructure of every step).
+
+    In the reference layout this runs once: the reference neighbourhood never changes,
+    and stages refresh halo values with :meth:`Context.update_halo`.
+    """
+    if ctx.layout == "reference" and ctx.halo is not None:
+        return
+    timed(ctx, "migrate", _distribute, ctx, force_partition)
+    p, key = ctx.particles, ctx.key
+
+    # mixed layout: current-configuration halo and lists only while there is fluid
+    # (the solid's reference halo and lists live in the coupled stage)
+    current = ctx.layout != "mixed" or global_any(
+        ctx.comm, bool((p["phase"][: p.n_owned] == PHASE_FLUID).any()))
+
+    def halo():
+        if ctx.layout == "mixed":
+            n = p.n_owned
+            phase = p["phase"][:n]
+            ctx.halo = coupled_halo(ctx.comm, p["x"][:n], phase == PHASE_SOLID,
+                                    phase == PHASE_FLUID, ctx.radius if current else -1.0,
+                                    ctx.box)
+        else:
+            ctx.halo = Halo.build(ctx.comm, ctx.rcb, p[key][: p.n_owned], ctx.radius + ctx.skin,
+                                  ctx.box)
+        p.set_halo(ctx.halo.exchange(p.owned_fields(), shift_fields=("x", "X")))
+
+    timed(ctx, "halo", halo)
+
+    def neighbours():
+        if current:
+            ctx.indptr, ctx.indices = build_csr(p[key], p.n_owned, ctx.radius)
+        else:
+            ctx.indptr = np.zeros(p.n_owned + 1, dtype=np.int64)
+            ctx.indices = np.zeros(0, dtype=np.int64)
+
+    timed(ctx, "neighbours", neighbours)

@@ -1,0 +1,105 @@
+r"""Known answers of the solid scenes, for ``parsph study`` and the tests (docs/tlsph.md).
+
+- ``elastic_plate``: period of the clamped plate (first tip zero crossing, doubled)
+  against the 2D plane-strain elasticity period of the same clamped plate,
+  :data:`PLATE_CONTINUUM_FACTOR` times the thin-plate (Euler–Bernoulli) period.
+- ``triaxial_light``, ``triaxial_heavy``: distance of the end point of the drained path
+  from the critical state line, :math:`|q - M p'| / (M p')`, from ``DIR/triaxial.csv``.
+
+Each reference is ``(scene, run_dir) -> float`` (a relative error), registered with
+:func:`parsph.verify.registry.reference`.
+"""
+from __future__ import annotations
+
+import csv
+import math
+import os
+
+import numpy as np
+
+from parsph.errors import ParsphError
+from parsph.verify.registry import reference
+from parsph.solid.boundary import BETA1
+
+#: 2D plane-strain elasticity period over the thin-plate period, for the plate of
+#: Gray, Monaghan & Swift (2001): L/H = 10, nu = 0.3975, edge x = 0 fixed (every
+#: displacement zero there, as the clamped particles are). Bilinear finite elements,
+#: 100x10 ... 800x80 elements, Richardson-extrapolated: T = 0.25522 s against the
+#: thin-plate 0.25403 s (+0.47 %). A Timoshenko beam (kappa = 5/6) gives +0.96 %: beam
+#: theory's shear and root are softer than the 2D continuum fixed along x = 0.
+PLATE_CONTINUUM_FACTOR = 1.0047
+
+
+def thin_plate_period(E, nu, rho, H, L) -> float:
+    r"""First period of a clamped-free thin plate in plane strain (Euler–Bernoulli):
+    :math:`\omega = (k_1/L)^2\sqrt{E H^2 / (12\rho(1-\nu^2))}`, :math:`k_1 = 1.8751`."""
+    omega = (BETA1 / L) ** 2 * math.sqrt(E * H ** 2 / (12.0 * rho * (1.0 - nu ** 2)))
+    return 2.0 * math.pi / omega
+
+
+def plate_reference_period(scene) -> float:
+    """The reference period of an ``elastic_plate`` scene (s): 2D elasticity."""
+    body = scene.bodies[0]
+    mat = scene.materials[body.material]
+    mode = [c for c in scene.constraints if c.profile == "cantilever_mode1"]
+    if not mode:
+        raise ParsphError(f"scene '{scene.name}': no cantilever_mode1 constraint")
+    L = mode[0].length
+    H = body.hi[1] - body.lo[1]
+    if abs(L / H - 10.0) > 1e-9 or abs(mat.poisson_ratio - 0.3975) > 1e-9:
+        raise ParsphError("the plate reference (2D elasticity factor) holds for L/H = 10, "
+                          "nu = 0.3975 only")
+    return PLATE_CONTINUUM_FACTOR * thin_plate_period(mat.young_modulus, mat.poisson_ratio,
+                                                      mat.density, H, L)
+
+
+def tip_period(run_dir) -> float:
+    """Twice the time of the first downward zero crossing of the plate tip's transverse
+    displacement (the tip particle on the mid-plane side, largest X), from particles.h5."""
+    from parsph.io import read_frame, read_frames
+
+    h5 = os.path.join(run_dir, "particles.h5")
+    frames = read_frames(h5)
+    first = read_frame(h5, frames[0][0])
+    X = first["x"][np.argsort(first["id"])]
+    tip = np.argmin(np.abs(X[:, 0] - X[:, 0].max()) + np.abs(X[:, 1]))
+    prev = None
+    for step, t in frames:
+        fr = read_frame(h5, step)
+        y = fr["x"][np.argsort(fr["id"])][tip, 1] - X[tip, 1]
+        if prev is not None and prev[1] > 0 >= y:
+            return 2.0 * (prev[0] + (t - prev[0]) * prev[1] / (prev[1] - y))
+        prev = (t, y)
+    return math.nan
+
+
+@reference("elastic_plate")
+def plate_period_error(scene, run_dir) -> float:
+    """Relative error of the measured period against :func:`plate_reference_period`."""
+    return abs(tip_period(run_dir) / plate_reference_period(scene) - 1.0)
+
+
+def csl_distance(p, q, M) -> float:
+    r""":math:`|q - M p'| / (M p')`: relative distance from the critical state line."""
+    return abs(q - M * p) / (M * p)
+
+
+def triaxial_end(run_dir) -> dict:
+    """The last row of ``DIR/triaxial.csv`` (columns t, axial_strain, p, q, v, M) as floats."""
+    path = os.path.join(run_dir, "triaxial.csv")
+    if not os.path.exists(path):
+        from parsph.solid.triaxial import write_from_stats
+
+        path = write_from_stats(run_dir)
+    with open(path) as fh:
+        rows = list(csv.DictReader(fh))
+    if not rows:
+        raise ParsphError(f"{path}: no rows")
+    return {k: float(v) for k, v in rows[-1].items()}
+
+
+@reference("triaxial_light", "triaxial_heavy")
+def triaxial_csl_error(scene, run_dir) -> float:
+    """End point of the drained path against the critical state line q = M p'."""
+    end = triaxial_end(run_dir)
+    return csl_distance(end["p"], end["q"], end["M"])
