@@ -107,6 +107,7 @@ def worker(args):
     """One run under mpirun: rank 0 prints 'MEMORY {json}'."""
     import resource
 
+    import solvers.operator as operator
     import solvers.system as system
     from decomposition import world
     from decomposition.reduce import global_max, global_sum
@@ -123,24 +124,30 @@ def worker(args):
             return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
 
     growth = {}
+    depth = [0]  # calls inside a measured call count in it, not again on their own
 
-    def measured(name):
-        fn = getattr(system.LinearSystem, name)
+    def measured(cls, name, part):
+        fn = getattr(cls, name)
 
         def wrapper(self, *a, **k):
             before = rss()
+            depth[0] += 1
             try:
                 return fn(self, *a, **k)
             finally:
-                key = f"{self.prefix.rstrip('_')}_{'matrix' if name == 'assemble_csr' else 'solve'}"
-                growth[key] = growth.get(key, 0) + max(0, rss() - before)
-        setattr(system.LinearSystem, name, wrapper)
+                depth[0] -= 1
+                if depth[0] == 0:
+                    key = f"{self.prefix.rstrip('_')}_{part}"
+                    growth[key] = growth.get(key, 0) + max(0, rss() - before)
+        setattr(cls, name, wrapper)
 
-    for name in ("assemble_csr", "solve"):
-        measured(name)
+    measured(system.LinearSystem, "assemble_csr", "matrix")
+    measured(system.LinearSystem, "solve", "solve")
+    # the matrix-free viscous system: its scalar matrix with the AMG set-up on it
+    measured(operator.OperatorSystem, "assemble_preconditioner", "matrix")
     text, d = scene(args.particles)
     base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024.0
-    summary, _ = run_benchmark(comm, text, [f"run.max_steps={args.steps}"])
+    summary, _ = run_benchmark(comm, text, [f"run.max_steps={args.steps}", *args.set])
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024.0
     rise = global_sum(comm, peak - base)
     peak_max = global_max(comm, peak)
@@ -164,9 +171,10 @@ def worker(args):
     print("MEMORY " + json.dumps(out), flush=True)
 
 
-def run_worker(ranks, particles, steps):
+def run_worker(ranks, particles, steps, settings=()):
     cmd = ["mpirun", "-n", str(ranks), sys.executable, os.path.abspath(__file__), "--worker",
-           "--particles", repr(particles), "--steps", str(steps)]
+           "--particles", repr(particles), "--steps", str(steps),
+           *(f"--set={s}" for s in settings)]
     out = subprocess.run(cmd, capture_output=True, text=True)
     if out.returncode:
         sys.exit(f"memory worker failed ({out.returncode}): {' '.join(cmd)}\n"
@@ -181,6 +189,8 @@ def main():
     ap.add_argument("--ranks", type=int, nargs="+", default=[1])
     ap.add_argument("--steps", type=int, default=3)
     ap.add_argument("--csv", default=None)
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="a scene setting, e.g. fluid.viscous_operator=assembled")
     ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.worker:
@@ -188,7 +198,7 @@ def main():
         return worker(args)
     for ranks in args.ranks:
         for particles in args.particles:
-            res = run_worker(ranks, particles, args.steps)
+            res = run_worker(ranks, particles, args.steps, args.set)
             n = res.pop("particles")
             record(args.csv, "memory_coupled_3d", "parsph", 3, n, ranks, res)
 

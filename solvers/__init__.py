@@ -17,5 +17,6 @@ See ``docs/solvers.md``.
 from solvers.petsc_env import init
 from solvers.errors import SolverError
 from solvers.system import LinearSystem
+from solvers.operator import OperatorSystem
 
-__all__ = ["init", "LinearSystem", "SolverError"]
+__all__ = ["init", "LinearSystem", "OperatorSystem", "SolverError"]

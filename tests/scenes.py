@@ -315,11 +315,12 @@ LONE_ROW = scene_text(
     walls=[wall("floor", [-0.5, -0.15], [3.0, 0.0])])
 
 
-def dense_system(kernel, *args, n_points, dim=1, capacity=None):
+def dense_system(kernel, *args, n_points, dim=1, capacity=None, tail=()):
     """Run a CSR kernel (``parsph.fluid.viscous.viscous_csr``, ``parsph.fluid.ppe.ppe_csr``) on
     rows numbered from 0 and return its matrix dense, with the right-hand side; checks
     on the way that every row's columns are sorted and distinct and, given
-    ``capacity`` (``assembly.csr_capacity``), that the kernel wrote nothing past it."""
+    ``capacity`` (``assembly.csr_capacity``), that the kernel wrote nothing past it.
+    ``tail``: arguments after the CSR arrays."""
     import numpy as np
 
     n = n_points * dim
@@ -328,7 +329,7 @@ def dense_system(kernel, *args, n_points, dim=1, capacity=None):
     ptr = np.zeros(n + 1, dtype=np.int32)
     cols = np.full(cap + guard, -7, dtype=np.int32)
     vals = np.full(cap + guard, -7.0)
-    nnz, rhs = kernel(*args, 0, ptr, cols, vals)
+    nnz, rhs = kernel(*args, 0, ptr, cols, vals, *tail)
     assert ptr[-1] == nnz <= cap and np.all(np.diff(ptr) >= 0)
     assert np.all(cols[cap:] == -7) and np.all(vals[cap:] == -7.0), "wrote past the capacity"
     A = np.zeros((n, n))

@@ -652,3 +652,53 @@ def test_product_operator_with_scaled_rows_solves_the_unscaled_system(comm):
                            row_scale=scale)
         x, _ = system.solve(b[first:stop] * scale)
         assert_matches(x, reference[first:stop])
+
+
+def _operator_problem(comm, system, n, coupling):
+    """Give ``system`` (an OperatorSystem over this rank's points of an ``n`` x ``n`` grid)
+    the operator kron(L, coupling) applied matrix-free and L as its preconditioner
+    matrix; returns the owned points."""
+    bs = coupling.shape[0]
+    first, stop = system.offset // bs, system.offset // bs + system.n_local_rows
+    points = np.arange(first, stop)
+    rows, cols, vals = poisson_triplets(n, points)
+    ghosts = np.unique(cols[(cols < first) | (cols >= stop)])
+    where = np.full(n * n, -1)
+    where[points] = np.arange(points.size)
+    where[ghosts] = points.size + np.arange(ghosts.size)
+    local = sp.csr_matrix((vals, (rows - first, where[cols])),
+                          shape=(points.size, points.size + ghosts.size))
+
+    def apply(u, out):
+        out[:] = (local @ u) @ coupling.T
+
+    system.set_operator(apply, ghosts)
+    L = sp.csr_matrix((vals, (rows - first, cols)), shape=(points.size, n * n))
+    L.sort_indices()
+    system.assemble_preconditioner(L.indptr, L.indices, L.data)
+    return points
+
+
+@pytest.mark.parametrize("n", [16, 24])
+def test_operator_system_matches_the_assembled_block_system(comm, n):
+    """A block operator applied matrix-free (the other ranks' unknowns by the system's
+    scatter), preconditioned by BoomerAMG on a scalar matrix per component, solves
+    kron(L, C) as the direct solve does; after a resize to other rows it solves again."""
+    from solvers import OperatorSystem
+
+    bs = 2
+    coupling = np.array([[2.0, -0.6], [0.3, 1.5]])
+    full = full_matrix(bs * n * n, coupled_triplets(n, np.arange(n * n), coupling))
+    b = rhs_of(bs * n * n)
+    exact = spla.spsolve(full, b)
+    with OperatorSystem(comm, "tst_", block_rows(comm, n * n), bs,
+                        rtol=KSP_RTOL_EXACT) as system:
+        for shift in (0, 7):  # the second pass: other rows on each rank
+            if shift:
+                mine = block_rows(comm, n * n) + (shift if comm.rank == 0 else -shift)
+                system.resize(mine if comm.size > 1 else n * n)
+            points = _operator_problem(comm, system, n, coupling)
+            x, info = system.solve(b.reshape(-1, bs)[points])
+            assert x.shape == (points.size, bs) and info["iterations"] < 40
+            assert_matches(x, exact.reshape(-1, bs)[points])
+            assert system.ksp.getPC().getType() == "python"

@@ -175,8 +175,14 @@ class IISPH:
             # the viscous matrix of a Bingham fluid changes too much from step to step (its
             # viscosity follows the strain rate): a lagged set-up made the slope_failure
             # demo's viscous solves 43 % slower, so it is set up afresh every step
-            self._visc = LinearSystem(ctx.comm, "visc_", n, block_size=ctx.dim,
-                                      ksp_type="gmres", rtol=self.num.visc_rtol, **tol)
+            if self.num.viscous_operator == "matrix_free":
+                from solvers import OperatorSystem
+
+                self._visc = OperatorSystem(ctx.comm, "visc_", n, ctx.dim,
+                                            rtol=self.num.visc_rtol, **tol)
+            else:
+                self._visc = LinearSystem(ctx.comm, "visc_", n, block_size=ctx.dim,
+                                          ksp_type="gmres", rtol=self.num.visc_rtol, **tol)
             self._n_rows = n
             self._ppe_ids = None
         return self._ppe, self._visc
@@ -286,12 +292,16 @@ class IISPH:
         """
         p, n, dim, h = ctx.particles, ctx.n_owned, ctx.dim, ctx.h
         t0 = time.perf_counter()
-        ptr, cols, vals = self._csr_buffers(visc, assembly.csr_capacity(
-            fluid, solid, row, indptr, dim, not morris))
-        nnz, rhs = viscous.viscous_csr(
-            p["x"], p["v"], m, p["rho"], p["nu"], fluid, solid, p["wall_slip"], row,
-            indptr, indices, h, dim, dt, g, morris, visc.offset // dim, ptr, cols, vals)
-        visc.assemble_csr(ptr, cols[:nnz], vals[:nnz])
+        if self.num.viscous_operator == "matrix_free":
+            rhs = self._viscous_operator(ctx, visc, order, dt, g, morris, m, row, indptr,
+                                         indices, fluid, solid)
+        else:
+            ptr, cols, vals = self._csr_buffers(visc, assembly.csr_capacity(
+                fluid, solid, row, indptr, dim, not morris))
+            nnz, rhs = viscous.viscous_csr(
+                p["x"], p["v"], m, p["rho"], p["nu"], fluid, solid, p["wall_slip"], row,
+                indptr, indices, h, dim, dt, g, morris, visc.offset // dim, ptr, cols, vals)
+            visc.assemble_csr(ptr, cols[:nnz], vals[:nnz])
         t_asm = time.perf_counter() - t0
         vstar, info = visc.solve(rhs[order], x0=p["v"][:n][order])
         full = np.zeros((n, dim))
@@ -301,6 +311,37 @@ class IISPH:
         out[:n][moved] = full[moved]
         p["v_ghost"][:n][wall] = full[wall]
         return info, t_asm
+
+    def _viscous_operator(self, ctx, visc, order, dt, g, morris, m, row, indptr, indices,
+                          fluid, solid):
+        """Collective: the matrix-free viscous system (:class:`solvers.OperatorSystem`):
+        one coefficient per neighbour pair and the scalar preconditioner matrix from
+        :func:`viscous.viscous_csr`, the operator :func:`viscous.viscous_apply` on them.
+        Returns the right-hand side (owned particles, shape (n, dim))."""
+        p, n, dim, h = ctx.particles, ctx.n_owned, ctx.dim, ctx.h
+        first = visc.offset // dim
+        ptr, cols, vals = self._csr_buffers(visc.scalar, assembly.csr_capacity(
+            fluid, solid, row, indptr, 1, False))
+        coef = self._buffers.get("visc_coef")
+        if coef is None or coef.size < indices.size:
+            coef = np.empty(int(1.25 * indices.size) + 1)
+            self._buffers["visc_coef"] = coef
+        coef = coef[:indices.size]
+        kind = np.full(n, 3, dtype=np.int8)
+        x = p["x"]
+        nnz, rhs = viscous.viscous_pairs(
+            x, p["v"], m, p["rho"], p["nu"], fluid, solid, p["wall_slip"], row,
+            indptr, indices, h, dim, dt, g, morris, first, ptr, cols, vals, coef, kind)
+        visc.assemble_preconditioner(ptr, cols[:nnz], vals[:nnz])
+        # where each local particle's unknowns sit in the operator's input: the owned rows
+        # in row order, then the points of other ranks (halo particles in a row)
+        src = np.full(len(row), -1, dtype=np.int64)
+        src[order] = np.arange(order.size)
+        halo = np.flatnonzero(row[n:] >= 0) + n
+        src[halo] = order.size + np.arange(halo.size)
+        visc.set_operator(lambda u, out: viscous.viscous_apply(
+            u, out, order, src, kind, coef, x, indptr, indices, dim), row[halo])
+        return rhs
 
     def step(self, ctx, dt, coupling=None) -> None:
         r"""Advance the owned fluid particles from t to t + dt (eqs. (30)-(37)).

@@ -31,7 +31,7 @@ from numba import njit
 from parsph.core.kernel import constants, delta, fac_grad_k, w_k
 from parsph.fluid.assembly import _store, _vec, fluid_weight_sum, rows_in_order
 
-__all__ = ["viscous_csr", "viscous_explicit", "ghost_velocity"]
+__all__ = ["viscous_csr", "viscous_pairs", "viscous_apply", "viscous_explicit", "ghost_velocity"]
 
 #: eta^2 / h^2 of the viscous term (avoids 1/r^2 blowing up for coincident particles).
 ETA2 = 0.01
@@ -91,8 +91,28 @@ def _viscous_pair(m, rho, nu, fluid, i, j, r2, k, dim, dt, eta2, morris):
 
 
 @njit(cache=True)
+def viscous_pairs(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, dim, dt,
+                  g, morris, first, out_ptr, out_cols, out_vals, coef, kind):
+    """The matrix-free form of :func:`viscous_csr`: the scalar preconditioner matrix (one
+    row per point), each pair's coefficient in ``coef`` and each row's form in ``kind``
+    (see there) for :func:`viscous_apply`. Returns ``(nnz, rhs)``."""
+    return _viscous_rows(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, dim,
+                         dt, g, morris, first, out_ptr, out_cols, out_vals, True, coef, kind)
+
+
+@njit(cache=True)
 def viscous_csr(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, dim, dt,
                 g, morris, first, out_ptr, out_cols, out_vals):
+    """CSR block and right-hand side of the implicit viscous predictor (30)/(34); see
+    :func:`_viscous_rows`. Returns ``(nnz, rhs)``."""
+    return _viscous_rows(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, dim,
+                         dt, g, morris, first, out_ptr, out_cols, out_vals, False,
+                         np.empty(0), np.empty(0, dtype=np.int8))
+
+
+@njit(cache=True)
+def _viscous_rows(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, dim, dt,
+                  g, morris, first, out_ptr, out_cols, out_vals, scalar, coef, kind):
     """CSR block and right-hand side of the implicit viscous predictor (30)/(34).
 
     Writes the owned scalar rows (block size ``dim``: component ``a`` of global point
@@ -116,11 +136,22 @@ def viscous_csr(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, d
     (eq. (43)). Rows with ``row[i] < 0`` (type I solids, walls without fluid neighbours)
     are not in the system. A fluid or solid row under eq. (34) stores full ``dim x dim``
     blocks (zeros included); the other rows the diagonal of each block.
+
+    Assembled use (:func:`viscous_csr`): ``scalar`` False, ``coef`` and ``kind`` empty.
+    Matrix-free use (:func:`viscous_pairs`, :func:`viscous_apply`): with ``scalar`` the block writes one scalar
+    row per point (columns ``P``) whose pair entries are the blocks' traces over ``dim``,
+    ``c r^2 / dim`` (the preconditioner's scalar Laplacian, one matrix for every
+    component); ``coef`` (one per neighbour pair, as ``indices``) receives each pair's
+    coefficient (``c``; ``W_wf / sum W`` of a no-slip wall row; 0 for a pair left out) and
+    ``kind`` (one per owned particle) the row's form: 0 the blocks ``c r r^T`` of eq.
+    (34), 1 Morris's ``c I``, 2 a no-slip ghost row, 3 an identity row.
     """
     n = indptr.shape[0] - 1
     rhs = np.zeros((n, dim))
     eta2 = ETA2 * h * h
     kc = constants(h, dim)
+    nd = 1 if scalar else dim  # scalar rows per point
+    pairs = coef.shape[0] > 0
     out_ptr[0] = 0
     k = 0
     order = rows_in_order(row, n, first)
@@ -132,7 +163,11 @@ def viscous_csr(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, d
         if not moving and not slip[i]:
             wsum = fluid_weight_sum(x, fluid, indptr, indices, i, h, dim)
         ghost = wsum > 0.0
-        bw = dim if moving and not morris else 1
+        bw = dim if moving and not morris and not scalar else 1
+        if pairs:
+            kind[i] = (1 if morris else 0) if moving else (2 if ghost else 3)
+            for p in range(indptr[i], indptr[i + 1]):
+                coef[p] = 0.0
         span = (indptr[i + 1] - indptr[i] + 1) * bw
         base = k
         t = 0
@@ -162,20 +197,25 @@ def viscous_csr(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, d
                 elif not fluid[j]:
                     continue
                 if dslot < 0 and rj >= ri:
-                    dslot, t, last = _slot(out_cols, out_vals, base, span, bw, dim, t, last, ri)
-                s, t, last = _slot(out_cols, out_vals, base, span, bw, dim, t, last, rj)
+                    dslot, t, last = _slot(out_cols, out_vals, base, span, bw, nd, t, last, ri)
+                s, t, last = _slot(out_cols, out_vals, base, span, bw, nd, t, last, rj)
                 d0, d1, d2, r2 = delta(x, i, j, dim)
                 if ghost:
                     wij = w_k(math.sqrt(r2), kc) / wsum
-                    for a in range(dim):
+                    if pairs:
+                        coef[p] = wij
+                    for a in range(nd):
                         out_vals[base + a * span + s] += wij
                     continue
                 c = _viscous_pair(m, rho, nu, fluid, i, j, r2, kc, dim, dt, eta2, morris) \
                     * (1.0 if fluid[i] else solid[i])
-                if morris:
-                    e00 -= c
-                    for a in range(dim):
-                        out_vals[base + a * span + s] += c
+                if pairs:
+                    coef[p] = c
+                if morris or scalar:
+                    cs = c if morris else c * r2 / dim  # the block's trace over dim
+                    e00 -= cs
+                    for a in range(nd):
+                        out_vals[base + a * span + s] += cs
                     continue
                 c00, c01, c02 = c * d0 * d0, c * d0 * d1, c * d0 * d2
                 c11, c12, c22 = c * d1 * d1, c * d1 * d2, c * d2 * d2
@@ -187,14 +227,55 @@ def viscous_csr(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, d
                 e22 -= c22
                 _add_block(out_vals, base + s * dim, span, dim, c00, c01, c02, c11, c12, c22)
         if dslot < 0:
-            dslot, t, last = _slot(out_cols, out_vals, base, span, bw, dim, t, last, ri)
-        if bw == dim:
+            dslot, t, last = _slot(out_cols, out_vals, base, span, bw, nd, t, last, ri)
+        if bw == dim and nd == dim:
             _add_block(out_vals, base + dslot * dim, span, dim, e00, e01, e02, e11, e12, e22)
-        else:  # a diagonal block: (1 - sum c) I (Morris), or the identity
-            for a in range(dim):
+        else:  # a diagonal block: (1 - sum c) I (Morris, scalar), or the identity
+            for a in range(nd):
                 out_vals[base + a * span + dslot] += e00
-        k = _close_rows(out_cols, out_vals, out_ptr, base, span, bw, dim, t, ri - first)
+        k = _close_rows(out_cols, out_vals, out_ptr, base, span, bw, nd, t, ri - first)
     return k, rhs
+
+
+@njit(cache=True)
+def viscous_apply(u, out, order, src, kind, coef, x, indptr, indices, dim):
+    """The operator of :func:`viscous_csr` applied to ``u``, pair by pair: ``out = A u``.
+
+    ``u`` holds the unknowns of the owned rows (row ``q``, shape (n_rows, dim)) followed
+    by those of the other points the rows reach (from other ranks); ``src[j]`` is the
+    position in ``u`` of local particle ``j`` (-1 if it is in no row). ``order[q]`` is the
+    local particle of row ``q``; ``kind`` and ``coef`` come from :func:`viscous_csr`. Row
+    ``q`` of particle ``i`` is ``u_i - sum_j c r r^T (u_i - u_j)`` (kind 0, eq. (34)),
+    ``u_i - sum_j c (u_i - u_j)`` (1, Morris), ``u_i + sum_f w_if u_f`` (2, no-slip
+    ghost) or ``u_i`` (3): the assembled block's row without its nine entries per pair.
+    """
+    for q in range(order.shape[0]):
+        i = order[q]
+        k = kind[i]
+        ui0, ui1, ui2 = _vec(u, q, dim)
+        o0, o1, o2 = ui0, ui1, ui2
+        if k != 3:
+            for p in range(indptr[i], indptr[i + 1]):
+                c = coef[p]
+                if c == 0.0:
+                    continue
+                s = src[indices[p]]
+                uj0, uj1, uj2 = _vec(u, s, dim)
+                if k == 2:
+                    o0 += c * uj0
+                    o1 += c * uj1
+                    o2 += c * uj2
+                elif k == 1:
+                    o0 -= c * (ui0 - uj0)
+                    o1 -= c * (ui1 - uj1)
+                    o2 -= c * (ui2 - uj2)
+                else:
+                    d0, d1, d2, r2 = delta(x, i, indices[p], dim)
+                    dr = c * (d0 * (ui0 - uj0) + d1 * (ui1 - uj1) + d2 * (ui2 - uj2))
+                    o0 -= d0 * dr
+                    o1 -= d1 * dr
+                    o2 -= d2 * dr
+        _store(out, q, dim, o0, o1, o2)
 
 
 @njit(cache=True, inline="always")

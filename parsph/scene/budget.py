@@ -9,10 +9,16 @@ from parsph.scene.geometry import estimate_count
 #: lists (int32 per neighbour) and the cell list, by dimension.
 BASE_BYTES = {2: 100 + 4 * 24 + 40, 3: 120 + 4 * 70 + 40}
 #: Extra bytes per particle of each stage (its fields and, for implicit stages, matrices).
-#: iisph: ~90 B of fields; the viscous system's CSR block (dim^2 per neighbour pair, 12 B
-#: each), PETSc's and hypre's copies and the AMG hierarchy dominate: ~6 kB in 2D, ~30 kB in
-#: 3D at h = 1.2 d (an upper bound: water at the CFL step skips the viscous system).
-STAGE_BYTES = {"kinematics": 0, "density": 8, "iisph": 16000, "tlsph": 1200, "coupled": 17200}
+#: iisph: its fields, both systems' scalar matrices with their hypre copies and AMG
+#: hierarchies, the viscous pairs' coefficients: a 3D coupled tank of 1.1e5 particles
+#: rose by 4.9 kB per particle in all (jobs/bench_memory.py, docs/performance.md), of
+#: which 3.3 kB is this stage's (coupled: with tlsph's 1.2 kB); 2D (~24 neighbours against ~57) is taken at the same
+#: figure, an upper bound.
+STAGE_BYTES = {"kinematics": 0, "density": 8, "iisph": 3300, "tlsph": 1200, "coupled": 4500}
+#: More bytes per particle with ``fluid.viscous_operator = "assembled"`` (the dim x dim
+#: blocks held as CSR work arrays, PETSc's AIJ and hypre's copy with its hierarchy: the
+#: same 3D tank rose by 14.2 kB per particle).
+ASSEMBLED_VISCOUS_BYTES = {2: 3000, 3: 9300}
 #: A scene may use at most this share of a node's memory.
 MEMORY_SHARE = 0.8
 
@@ -40,6 +46,9 @@ def estimate(comm, scene, specs) -> dict:
     n = estimate_count(scene)
     dim = scene.domain.dim
     per_particle = BASE_BYTES[dim] + sum(STAGE_BYTES.get(s.name, 0) for s in specs)
+    if any(s.name in ("iisph", "coupled") for s in specs) \
+            and scene.fluid.viscous_operator == "assembled":
+        per_particle += ASSEMBLED_VISCOUS_BYTES[dim]
     total = n * per_particle
     return {"particles": n, "bytes_per_particle": per_particle, "bytes_total": total,
             "bytes_per_rank": total / comm.size, "ranks": comm.size}

@@ -71,6 +71,12 @@ class FluidNumerics:
                                "nu dt / h^2 of the fluid is below explicit_viscous_number, else "
                                "implicit; coupled steps are always implicit; docs/iisph.md)",
                                choices=("auto", "implicit", "explicit"))
+    viscous_operator: str = spec("matrix_free", doc="an implicit viscous solve's operator: "
+                                 "matrix_free (the pairs of eq. (34) applied in GMRES, BoomerAMG "
+                                 "on a scalar matrix of the same pairs: a ninth of the entries, "
+                                 "docs/solvers.md) | assembled (the dim x dim blocks in a PETSc "
+                                 "matrix, block BoomerAMG on them)",
+                                 choices=("matrix_free", "assembled"))
     splitting: str = spec("projection_first", doc="order of an implicit step's two solves: "
                           "projection_first (the PPE on v + dt g, then the viscous solve on "
                           "the projected velocity with the new pressure in the yield stress "
