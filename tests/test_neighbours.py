@@ -99,6 +99,37 @@ def test_equals_brute_force(case):
 
 
 @SETTINGS
+@given(point_sets())
+def test_cross_search_is_the_target_part_of_build_csr(case):
+    """``build_cross_csr(x[:k], x[k:])``: each query's neighbours among the targets only,
+    the same pairs (and order) as the full search's lists restricted to the targets; on
+    every kind of set (duplicates, ties at the radius, huge boxes, lines)."""
+    from parsph.core.cross import build_cross_csr
+
+    x, k, radius = case
+    indptr, indices = build_cross_csr(x[:k], x[k:], radius)
+    ref_ptr, ref_idx = brute_force(x, k, radius)
+    assert indptr.dtype == np.int64 and indices.dtype == np.int32
+    assert indptr.shape == (k + 1,)
+    for i in range(k):
+        ref = ref_idx[ref_ptr[i]:ref_ptr[i + 1]]
+        assert np.array_equal(indices[indptr[i]:indptr[i + 1]], ref[ref >= k] - k)
+
+
+def test_cross_search_checks_its_arguments():
+    from parsph.core.cross import build_cross_csr
+
+    ptr, idx = build_cross_csr(np.zeros((3, 2)), np.zeros((0, 2)), 0.1)
+    assert ptr.tolist() == [0, 0, 0, 0] and idx.size == 0
+    with pytest.raises(ValueError, match="dimension"):
+        build_cross_csr(np.zeros((3, 2)), np.zeros((2, 3)), 0.1)
+    with pytest.raises(ValueError, match="radius"):
+        build_cross_csr(np.zeros((3, 2)), np.zeros((2, 2)), 0.0)
+    with pytest.raises(ValueError, match="NaN"):
+        build_cross_csr(np.full((1, 2), np.nan), np.zeros((2, 2)), 0.1)
+
+
+@SETTINGS
 @given(
     x=hnp.arrays(
         np.float64,

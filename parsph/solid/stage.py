@@ -230,7 +230,7 @@ class TLSPH:
 
     def _contact(self, ctx) -> int:
         """Collective: wall particles near this rank's solids, then :func:`wall_contact`."""
-        from parsph.core.neighbours import build_csr
+        from parsph.core.cross import build_cross_csr
 
         p, n = ctx.particles, ctx.particles.n_owned
         solid = self.sel[:n]
@@ -239,8 +239,11 @@ class TLSPH:
         count = 0
         rows = np.flatnonzero(solid).astype(np.int64)
         if len(xw) and len(rows):
-            xall = np.concatenate([p["x"][:n][solid], xw])
-            indptr, indices = build_csr(xall, len(rows), ctx.radius)
+            xs = p["x"][:n][solid]
+            xall = np.concatenate([xs, xw])
+            # the walls near each solid (indices into xall: walls after the solids)
+            indptr, indices = build_cross_csr(xs, xw, ctx.radius)
+            indices += np.int32(len(rows))
             wall = np.zeros(len(xall), dtype=np.uint8)
             wall[len(rows):] = 1
             mu = np.full(len(rows), self.num.wall_friction)
