@@ -37,8 +37,8 @@ name = "memory_tank_3d"
 [domain]
 dim = 3
 particle_size = {d!r}
-lo = [{lo!r}, {lo!r}, {lo!r}]
-hi = [{hix!r}, {hiy!r}, 0.8]
+lo = [{dlo!r}, {dlo!r}, {dlo!r}]
+hi = [{dhix!r}, {dhiy!r}, 0.8]
 [run]
 end_time = 1.0e9
 [output]
@@ -102,7 +102,9 @@ def scene(particles: float, width: float = 0.25) -> tuple[str, float]:
         lo, hi = (mid, hi) if count(mid) > particles else (lo, mid)
     # a whole number of particles across every span
     d = 0.1 / max(1, round(0.1 / lo))
-    return SCENE.format(d=d, lo=-3 * d, hix=1.0 + 3 * d, hiy=width + 3 * d, y=width), d
+    # the domain a particle beyond the floor (no lattice point on its bounds by round-off)
+    return SCENE.format(d=d, lo=-3 * d, hix=1.0 + 3 * d, hiy=width + 3 * d, y=width,
+                        dlo=-4 * d, dhix=1.0 + 4 * d, dhiy=width + 4 * d), d
 
 
 def worker(args):
