@@ -16,9 +16,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from parsph.core.neighbours import (_DENSE_MIN, _DENSE_PER_PARTICLE, _REACH, _cell_size,
-                                    _checked_box, _pad_coords, _ranges, _sort_dense,
-                                    _sort_sparse)
+from parsph.core.neighbours import _binned, _checked_box, _pad_coords, _ranges
 
 __all__ = ["build_cross_csr"]
 
@@ -59,22 +57,8 @@ def build_cross_csr(xq, xt, radius):
         return indptr, np.empty(0, dtype=np.int32)
     # one grid over both sets (a query outside the targets' box still finds its cells)
     _, lo3, hi3, extent = _checked_box(np.concatenate([xq, xt]))
-    reach = _REACH
-    cell = _cell_size(radius, extent, reach)
-    ncell = (np.floor((hi3 - lo3) / cell) + 1.0).astype(np.int64)
-    n_dense = int(ncell[0]) * int(ncell[1]) * int(ncell[2])
-    sparse = n_dense > _DENSE_PER_PARTICLE * nt + _DENSE_MIN
-    inv_cell = 1.0 / cell
-    xp, cc = _pad_coords(xt, lo3, inv_cell, ncell)
-    if sparse:
-        order, _, xs, cells, cell_start = _sort_sparse(xp, cc)
-        start = np.zeros(1, dtype=np.int64)
-    else:
-        order, _, xs, start = _sort_dense(xp, cc, ncell)
-        cells = np.zeros((1, 3), dtype=np.int64)
-        cell_start = np.zeros(1, dtype=np.int64)
-    qp, _ = _pad_coords(xq, lo3, inv_cell, ncell)
-    grid = (lo3, inv_cell, ncell, reach, sparse, start, cells, cell_start)
+    order, _, xs, grid = _binned(xt, lo3, hi3, extent, radius)
+    qp, _ = _pad_coords(xq, lo3, grid[1], grid[2])
     r2max = radius * radius
     _cross_count(qp, xs, r2max, *grid, indptr)
     indices = np.empty(int(indptr[-1]), dtype=np.int32)

@@ -430,6 +430,28 @@ def _checked_box(x):
     return x, lo3, hi3, extent
 
 
+def _binned(x, lo3, hi3, extent, radius):
+    """The rows of ``x`` sorted into the cells of the box ``lo3``..``hi3`` (extent
+    ``extent``) for ``radius``: ``order`` (slot -> row), ``rank_of`` (row -> slot), ``xs``
+    (padded positions in slot order) and ``grid``, the arguments of :func:`_ranges` after
+    the position (dense grid, or sorted occupied cells when it would be too large)."""
+    reach = _REACH
+    cell = _cell_size(radius, extent, reach)
+    ncell = (np.floor((hi3 - lo3) / cell) + 1.0).astype(np.int64)
+    n_dense = int(ncell[0]) * int(ncell[1]) * int(ncell[2])  # Python ints: exact
+    sparse = n_dense > _DENSE_PER_PARTICLE * x.shape[0] + _DENSE_MIN
+    inv_cell = 1.0 / cell
+    xp, cc = _pad_coords(x, lo3, inv_cell, ncell)
+    if sparse:
+        order, rank_of, xs, cells, cell_start = _sort_sparse(xp, cc)
+        start = np.zeros(1, dtype=np.int64)
+    else:
+        order, rank_of, xs, start = _sort_dense(xp, cc, ncell)
+        cells = np.zeros((1, 3), dtype=np.int64)
+        cell_start = np.zeros(1, dtype=np.int64)
+    return order, rank_of, xs, (lo3, inv_cell, ncell, reach, sparse, start, cells, cell_start)
+
+
 # --------------------------------------------------------------------------- public
 
 
@@ -482,23 +504,7 @@ def build_csr(x, n_query, radius):
     if n_query == 0 or n < 2 or r2max == 0.0:  # (radius**2 may underflow to 0)
         return indptr, np.empty(0, dtype=np.int32)
 
-    reach = _REACH
-    cell = _cell_size(radius, extent, reach)
-    ncell = (np.floor((hi3 - lo3) / cell) + 1.0).astype(np.int64)
-    n_dense = int(ncell[0]) * int(ncell[1]) * int(ncell[2])  # Python ints: exact
-    sparse = n_dense > _DENSE_PER_PARTICLE * n + _DENSE_MIN
-    inv_cell = 1.0 / cell
-    xp, cc = _pad_coords(x, lo3, inv_cell, ncell)
-    if sparse:
-        order, rank_of, xs, cells, cell_start = _sort_sparse(xp, cc)
-        start = np.zeros(1, dtype=np.int64)
-    else:
-        order, rank_of, xs, start = _sort_dense(xp, cc, ncell)
-        cells = np.zeros((1, 3), dtype=np.int64)
-        cell_start = np.zeros(1, dtype=np.int64)
-    del xp, cc
-
-    grid = (lo3, inv_cell, ncell, reach, sparse, start, cells, cell_start)
+    order, rank_of, xs, grid = _binned(x, lo3, hi3, extent, radius)
     _count(xs, order, n_query, r2max, *grid, indptr)
     indices = np.empty(int(indptr[-1]), dtype=np.int32)
     if indices.shape[0] > _GATHER_MIN_PAIRS and _disorder(order) > _GATHER_DISORDER:
