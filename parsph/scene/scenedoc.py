@@ -74,6 +74,42 @@ sides = ["left", "right", "bottom"]
 """
 
 
+#: What the tables below hold beyond the example, in words (after the example).
+BEYOND = [
+    "The keys every scene has: `domain.dim`, `domain.particle_size`, `run.end_time`,",
+    "`output.every`. Built-in scenes are in `parsph/scenes/` (`parsph scenes`); a scene",
+    "file is checked before anything is allocated: an unknown key, a wrong type, a NaN, a",
+    "negative size or a missing file is refused with the file and the dotted key named.",
+    "",
+    "- **Bodies and walls**: boxes, polygons (2D), extruded polygons, height maps (3D: ESRI",
+    "  ASCII grids, `ncols`, `nrows`, `xllcorner`, `yllcorner`, `cellsize`, then rows north",
+    "  to south, or GeoTIFF DEMs in metres) and closed STL/OBJ meshes (`file`, `scale`,",
+    "  `rotate`, `translate`; walls: layers inside or outside it). Paths are relative to",
+    "  the scene file ([geometry.md](geometry.md)).",
+    "- **Periodic axes** work in every scene, coupled ones included (`slope_failure_3d` is",
+    "  periodic across the slope; [coupling.md](coupling.md)).",
+    "- **Earthquake records**: `[loading] record = \"quake.csv\"`, a CSV of time and ground",
+    "  accelerations with units in the header, enter both phases as a body acceleration",
+    "  ([loading.md](loading.md)).",
+    "- **Solids**: `[[constraints]]` (fixed particles, prescribed velocities, named initial",
+    "  velocity profiles) and the `[solid]` table ([tlsph.md](tlsph.md)).",
+    "- **Fluids**: the `[fluid]` table: PPE form, free-surface criterion, tolerances; the",
+    "  viscous predictor is solved implicitly, as in the paper, unless ν Δt/h² is below",
+    "  `explicit_viscous_number` (water); `preconditioner_reuse` solves share one AMG set-up",
+    "  ([iisph.md](iisph.md)).",
+    "- **Phase change**: the `[phase_change]` table (`eps_p_limit`, `fluid`, `min_support`,",
+    "  `fluidise_failed`; [coupling.md](coupling.md)).",
+    "- **Probes**: `[[probes]]` sample fields at points, along lines (deposit thickness with",
+    "  `measure = \"depth\"`) and over boxes into `DIR/probes.csv` ([probes.md](probes.md)).",
+    "",
+    "Only the effects a scene calls for are built: the step is composed from its materials",
+    "(`parsph/step/pipeline.py`), and a stage's module is imported only when needed, so a",
+    "solid-only scene never imports petsc4py and a fluid-only scene never compiles the TLSPH",
+    "kernels. Any key can be overridden: `--set domain.particle_size=0.01 --set",
+    "bodies.0.velocity=[1,0]`.",
+]
+
+
 def _table(rows) -> list[str]:
     out = ["| key | default | meaning |", "|---|---|---|"]
     bar = "\\|"  # a literal | inside a Markdown table cell
@@ -87,7 +123,7 @@ def markdown() -> str:
              "`parsph/scene/loader.py` and `parsph/scene/materials.py` (a test keeps this page in step).",
              "Every key can be overridden with `--set KEY=VALUE` (the value is read as TOML;",
              "list entries as `bodies.0.lo`).", "",
-             "## An annotated scene", "", EXAMPLE, ""]
+             "## An annotated scene", "", EXAMPLE.rstrip("\n"), ""] + BEYOND + [""]
     for title, cls, prefix in SECTIONS:
         lines += [f"## {title}", ""] + NOTES.get(title, []) + _table(schema.describe(cls, prefix)) \
             + [""]
