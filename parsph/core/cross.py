@@ -60,36 +60,18 @@ def build_cross_csr(xq, xt, radius):
     order, _, xs, grid = _binned(xt, lo3, hi3, extent, radius)
     qp, _ = _pad_coords(xq, lo3, grid[1], grid[2])
     r2max = radius * radius
-    _cross_count(qp, xs, r2max, *grid, indptr)
+    _cross_pass(qp, xs, order, r2max, *grid, indptr, np.empty(0, dtype=np.int32), False)
     indices = np.empty(int(indptr[-1]), dtype=np.int32)
-    _cross_fill(qp, xs, order, r2max, *grid, indptr, indices)
+    _cross_pass(qp, xs, order, r2max, *grid, indptr, indices, True)
     return indptr, indices
 
 
 @njit(cache=True)
-def _cross_count(qp, xs, r2max, lo, inv_cell, ncell, reach, sparse, start, cells,
-                 cell_start, indptr):
-    """``indptr`` from the number of targets within reach of each query."""
-    w = 2 * reach + 1
-    rng = np.empty((w * w, 2), dtype=np.int64)
-    gap2 = np.empty((3, w))
-    for i in range(qp.shape[0]):
-        nr = _ranges(qp, i, lo, inv_cell, ncell, reach, sparse, start, cells, cell_start,
-                     gap2, rng)
-        cnt = 0
-        for k in range(nr):
-            for t in range(rng[k, 0], rng[k, 1]):
-                d0 = xs[t, 0] - qp[i, 0]
-                d1 = xs[t, 1] - qp[i, 1]
-                d2 = xs[t, 2] - qp[i, 2]
-                cnt += d0 * d0 + d1 * d1 + d2 * d2 < r2max
-        indptr[i + 1] = indptr[i] + cnt
-
-
-@njit(cache=True)
-def _cross_fill(qp, xs, order, r2max, lo, inv_cell, ncell, reach, sparse, start, cells,
-                cell_start, indptr, indices):
-    """Each query's targets (rows of the caller's array), sorted ascending."""
+def _cross_pass(qp, xs, order, r2max, lo, inv_cell, ncell, reach, sparse, start, cells,
+                cell_start, indptr, indices, fill):
+    """The count pass (``fill`` False: ``indptr`` from the number of targets within reach
+    of each query) or the fill pass (each query's targets, rows of the caller's array,
+    sorted ascending into ``indices``) over the same candidate ranges and test."""
     w = 2 * reach + 1
     rng = np.empty((w * w, 2), dtype=np.int64)
     gap2 = np.empty((3, w))
@@ -103,8 +85,12 @@ def _cross_fill(qp, xs, order, r2max, lo, inv_cell, ncell, reach, sparse, start,
                 d1 = xs[t, 1] - qp[i, 1]
                 d2 = xs[t, 2] - qp[i, 2]
                 if d0 * d0 + d1 * d1 + d2 * d2 < r2max:
-                    indices[c] = order[t]
+                    if fill:
+                        indices[c] = order[t]
                     c += 1
+        if not fill:
+            indptr[i + 1] = c
+            continue
         # insertion sort of the row (a few tens of entries, nearly sorted by cell)
         for a in range(indptr[i] + 1, c):
             v = indices[a]

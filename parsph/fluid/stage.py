@@ -35,8 +35,7 @@ import numpy as np
 
 from decomposition.numbering import global_offset
 from decomposition.reduce import global_any, global_max, global_min, global_sum
-from parsph.fluid import response
-from parsph.fluid import assembly, rheology, viscous
+from parsph.fluid import assembly, response, rheology, viscous
 from parsph.fluid.ppe import ppe_csr
 from parsph.core.contact import wall_contact
 from parsph.fluid.walls import wall_slip
@@ -316,7 +315,7 @@ class IISPH:
                           fluid, solid):
         """Collective: the matrix-free viscous system (:class:`solvers.OperatorSystem`):
         one coefficient per neighbour pair and the scalar preconditioner matrix from
-        :func:`viscous.viscous_csr`, the operator :func:`viscous.viscous_apply` on them.
+        :func:`viscous.viscous_pairs`, the operator :func:`viscous.viscous_apply` on them.
         Returns the right-hand side (owned particles, shape (n, dim))."""
         p, n, dim, h = ctx.particles, ctx.n_owned, ctx.dim, ctx.h
         first = visc.offset // dim
