@@ -100,11 +100,13 @@ def scene(particles: float, width: float = 0.25) -> tuple[str, float]:
     for _ in range(60):
         mid = 0.5 * (lo + hi)
         lo, hi = (mid, hi) if count(mid) > particles else (lo, mid)
-    # a whole number of particles across every span
+    # a whole number of particles across every span (the slab's width: as near
+    # ``width`` as the lattice allows)
     d = 0.1 / max(1, round(0.1 / lo))
+    y = d * max(1, round(width / d))
     # the domain a particle beyond the floor (no lattice point on its bounds by round-off)
-    return SCENE.format(d=d, lo=-3 * d, hix=1.0 + 3 * d, hiy=width + 3 * d, y=width,
-                        dlo=-4 * d, dhix=1.0 + 4 * d, dhiy=width + 4 * d), d
+    return SCENE.format(d=d, lo=-3 * d, hix=1.0 + 3 * d, hiy=y + 3 * d, y=y,
+                        dlo=-4 * d, dhix=1.0 + 4 * d, dhiy=y + 4 * d), d
 
 
 def worker(args):

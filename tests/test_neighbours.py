@@ -219,6 +219,49 @@ def test_gather_fill_gives_the_same_lists(monkeypatch):
     assert np.array_equal(ref[0], got[0]) and np.array_equal(ref[1], got[1])
 
 
+def brute_force_active(x, n_query, radius, active):
+    """Reference lists with ``active``: an inactive row keeps its row only if an active
+    row is among its neighbours (empty otherwise)."""
+    ptr, idx = brute_force(x, n_query, radius)
+    rows = [idx[ptr[i]:ptr[i + 1]] for i in range(n_query)]
+    rows = [r if active[i] or active[r].any() else r[:0] for i, r in enumerate(rows)]
+    indptr = np.zeros(n_query + 1, dtype=np.int64)
+    indptr[1:] = np.cumsum([len(r) for r in rows], dtype=np.int64)
+    return indptr, np.concatenate(rows + [np.empty(0, np.int32)]).astype(np.int32)
+
+
+@given(case=point_sets(), data=st.data())
+@SETTINGS
+def test_active_rows_keep_lists_only_where_an_active_row_is_near(case, data):
+    """``active``: the inactive rows with no active neighbour get empty lists, every other
+    row its brute-force list; both fill passes agree."""
+    import parsph.core.neighbours as nb
+
+    x, n_query, radius = case
+    active = np.asarray(data.draw(hnp.arrays(np.bool_, len(x))), dtype=bool)
+    ref = brute_force_active(x, n_query, radius, active)
+    got = build_csr(x, n_query, radius, active=active)
+    assert np.array_equal(got[0], ref[0]) and np.array_equal(got[1], ref[1])
+    gather, disorder = nb._GATHER_MIN_PAIRS, nb._GATHER_DISORDER
+    try:
+        nb._GATHER_MIN_PAIRS, nb._GATHER_DISORDER = 0, -1.0
+        got = build_csr(x, n_query, radius, active=active.astype(np.uint8))
+    finally:
+        nb._GATHER_MIN_PAIRS, nb._GATHER_DISORDER = gather, disorder
+    assert np.array_equal(got[0], ref[0]) and np.array_equal(got[1], ref[1])
+    if len(x):  # all active: the plain lists
+        plain = build_csr(x, n_query, radius)
+        every = build_csr(x, n_query, radius, active=np.ones(len(x), dtype=bool))
+        assert np.array_equal(plain[1], every[1]) and np.array_equal(plain[0], every[0])
+
+
+def test_active_must_flag_every_row():
+    x = np.zeros((5, 2))
+    x[:, 0] = np.arange(5)
+    with pytest.raises(ValueError, match="one flag per row"):
+        build_csr(x, 5, 1.5, active=np.ones(4, dtype=bool))
+
+
 @pytest.mark.parametrize("dim", [1, 2, 3])
 def test_cell_order(dim):
     rng = np.random.default_rng(17)

@@ -35,6 +35,10 @@ class Context:
     indices: np.ndarray = None
     layout: str = "current"
     key: str = "x"
+    #: The current-configuration lists serve only an IISPH step (the iisph or coupled
+    #: stage), whose kernels read a boundary row's neighbours only when the fluid touches
+    #: it: a wall or solid row then gets its list only when a fluid row is within reach.
+    wet_lists: bool = False
     restarted: bool = False
     out: str = ""
     materials: list = field(default_factory=list)

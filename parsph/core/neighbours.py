@@ -275,8 +275,13 @@ def _ranges(xs, s, lo, inv_cell, ncell, reach, sparse, start, cells, cell_start,
 
 @njit(cache=True)
 def _count(xs, order, n_query, r2max, lo, inv_cell, ncell, reach, sparse, start, cells,
-           cell_start, indptr):
-    """First pass, query rows in slot order: ``indptr`` from the neighbour counts."""
+           cell_start, indptr, act_s, keep, keep_s):
+    """First pass, query rows in slot order: ``indptr`` from the neighbour counts.
+
+    ``act_s`` (the running count of active slots, ``act_s[t]`` active slots before slot
+    ``t``; empty: every row active): a query row that is not active keeps its list
+    (``keep[i] = keep_s[s] = 1``) only when an active row is among its neighbours, and
+    gets an empty one otherwise; one whose cells hold no active slot is not searched."""
     n = xs.shape[0]
     w = 2 * reach + 1
     rng = np.empty((w * w, 2), dtype=np.int64)
@@ -291,12 +296,31 @@ def _count(xs, order, n_query, r2max, lo, inv_cell, ncell, reach, sparse, start,
         x1 = xs[s, 1]
         x2 = xs[s, 2]
         cnt = 0
-        for k in range(nr):
-            for t in range(rng[k, 0], rng[k, 1]):
-                d0 = xs[t, 0] - x0
-                d1 = xs[t, 1] - x1
-                d2 = xs[t, 2] - x2
-                cnt += d0 * d0 + d1 * d1 + d2 * d2 < r2max
+        if act_s.shape[0] == 0 or act_s[s + 1] > act_s[s]:
+            for k in range(nr):
+                for t in range(rng[k, 0], rng[k, 1]):
+                    d0 = xs[t, 0] - x0
+                    d1 = xs[t, 1] - x1
+                    d2 = xs[t, 2] - x2
+                    cnt += d0 * d0 + d1 * d1 + d2 * d2 < r2max
+            keep[i] = 1
+        else:  # an inactive row: a list only if an active row is within reach
+            near = 0
+            for k in range(nr):
+                near += act_s[rng[k, 1]] - act_s[rng[k, 0]]
+            wet = 0
+            if near > 0:
+                for k in range(nr):
+                    for t in range(rng[k, 0], rng[k, 1]):
+                        d0 = xs[t, 0] - x0
+                        d1 = xs[t, 1] - x1
+                        d2 = xs[t, 2] - x2
+                        inside = d0 * d0 + d1 * d1 + d2 * d2 < r2max
+                        cnt += inside
+                        wet += inside & (act_s[t + 1] > act_s[t])
+            keep[i] = wet > 0
+            cnt = cnt if wet > 0 else 1
+        keep_s[s] = keep[i]
         # the particle itself (own cell, distance 0 < r2max) was counted once
         indptr[i + 1] = cnt - 1
     indptr[0] = 0
@@ -306,10 +330,12 @@ def _count(xs, order, n_query, r2max, lo, inv_cell, ncell, reach, sparse, start,
 
 @njit(cache=True)
 def _fill(xs, order, rank_of, n_query, r2max, lo, inv_cell, ncell, reach, sparse, start,
-          cells, cell_start, indptr, indices):
+          cells, cell_start, indptr, indices, keep, kept):
     """Second pass, all rows ``j`` in ascending order: append ``j`` to its query rows.
 
     Visiting ``j`` in ascending order fills every row already sorted, with no sort.
+    ``kept`` (empty: every query row keeps its list) is the running count of the slots
+    whose rows keep their lists: a ``j`` with none in its cells is not searched.
     """
     n = xs.shape[0]
     w = 2 * reach + 1
@@ -324,6 +350,12 @@ def _fill(xs, order, rank_of, n_query, r2max, lo, inv_cell, ncell, reach, sparse
         ncand = 0
         for k in range(nr):
             ncand += rng[k, 1] - rng[k, 0]
+        if kept.shape[0]:
+            wanted = 0
+            for k in range(nr):
+                wanted += kept[rng[k, 1]] - kept[rng[k, 0]]
+            if wanted == 0:
+                continue
         if ncand > hits.shape[0]:
             hits = np.empty(2 * ncand, dtype=np.int64)
         x0 = xs[s, 0]
@@ -342,7 +374,7 @@ def _fill(xs, order, rank_of, n_query, r2max, lo, inv_cell, ncell, reach, sparse
         for q in range(p):
             t = hits[q]
             i = order[t]
-            if i < n_query and t != s:
+            if i < n_query and t != s and keep[i]:
                 c = cursor[i]
                 if c < indptr[i + 1]:  # never true for a consistent count
                     indices[c] = j
@@ -357,7 +389,7 @@ def _fill(xs, order, rank_of, n_query, r2max, lo, inv_cell, ncell, reach, sparse
 
 @njit(cache=True)
 def _fill_gather(xs, order, n_query, r2max, lo, inv_cell, ncell, reach, sparse, start,
-                 cells, cell_start, indptr, indices):
+                 cells, cell_start, indptr, indices, keep):
     """Second pass, query rows in slot order, each row sorted (insertion sort)."""
     n = xs.shape[0]
     w = 2 * reach + 1
@@ -365,7 +397,7 @@ def _fill_gather(xs, order, n_query, r2max, lo, inv_cell, ncell, reach, sparse, 
     gap2 = np.empty((3, w))
     for s in range(n):
         i = order[s]
-        if i >= n_query:
+        if i >= n_query or not keep[i]:
             continue
         nr = _ranges(xs, s, lo, inv_cell, ncell, reach, sparse, start, cells, cell_start, gap2,
                      rng)
@@ -452,10 +484,17 @@ def _binned(x, lo3, hi3, extent, radius):
     return order, rank_of, xs, (lo3, inv_cell, ncell, reach, sparse, start, cells, cell_start)
 
 
+def _running_count(flags):
+    """``out[t]`` = the number of nonzero ``flags`` before index ``t`` (length N + 1)."""
+    out = np.zeros(len(flags) + 1, dtype=np.int64)
+    np.cumsum(flags != 0, out=out[1:])
+    return out
+
+
 # --------------------------------------------------------------------------- public
 
 
-def build_csr(x, n_query, radius):
+def build_csr(x, n_query, radius, active=None):
     """Neighbour lists of ``x[:n_query]`` among all rows of ``x``, in CSR form.
 
     Parameters
@@ -469,6 +508,11 @@ def build_csr(x, n_query, radius):
         Search radius (> 0), normally the kernel support ``2 h``
         (:func:`parsph.core.kernel.support_radius`). Pairs with squared distance strictly
         below ``radius**2`` are neighbours.
+    active : array_like of bool, shape (N,), optional
+        One flag per row of ``x``. A query row that is not active gets its full list
+        only when an active row is among its neighbours, and an empty list otherwise
+        (an IISPH step reads a boundary row's neighbours only when the fluid touches it:
+        dry walls and type-I solids need none). Default: every row active.
 
     Returns
     -------
@@ -504,13 +548,26 @@ def build_csr(x, n_query, radius):
     if n_query == 0 or n < 2 or r2max == 0.0:  # (radius**2 may underflow to 0)
         return indptr, np.empty(0, dtype=np.int32)
 
+    if active is not None:
+        active = np.asarray(active)
+        if active.shape != (n,):
+            raise ValueError(f"active must have one flag per row ({n},), got {active.shape}")
     order, rank_of, xs, grid = _binned(x, lo3, hi3, extent, radius)
-    _count(xs, order, n_query, r2max, *grid, indptr)
+    # running counts over the slots (cell order): the active slots (and below, the slots
+    # whose rows keep a list) in any range of cells
+    act_s = kept = np.zeros(0, dtype=np.int64)
+    if active is not None:
+        act_s = _running_count(active[order])
+    keep = np.zeros(n_query, dtype=np.uint8)
+    keep_s = np.zeros(n, dtype=np.uint8)
+    _count(xs, order, n_query, r2max, *grid, indptr, act_s, keep, keep_s)
     indices = np.empty(int(indptr[-1]), dtype=np.int32)
     if indices.shape[0] > _GATHER_MIN_PAIRS and _disorder(order) > _GATHER_DISORDER:
-        ok = _fill_gather(xs, order, n_query, r2max, *grid, indptr, indices)
+        ok = _fill_gather(xs, order, n_query, r2max, *grid, indptr, indices, keep)
     else:
-        ok = _fill(xs, order, rank_of, n_query, r2max, *grid, indptr, indices)
+        if active is not None:
+            kept = _running_count(keep_s)
+        ok = _fill(xs, order, rank_of, n_query, r2max, *grid, indptr, indices, keep, kept)
     if not ok:
         raise RuntimeError("neighbour search: count and fill passes disagree (a bug)")
     return indptr, indices

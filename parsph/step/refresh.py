@@ -181,7 +181,8 @@ def refresh(ctx, force_partition: bool = False) -> None:
 
     def neighbours():
         if current:
-            ctx.indptr, ctx.indices = build_csr(p[key], p.n_owned, ctx.radius)
+            wet = p["phase"] == PHASE_FLUID if ctx.wet_lists else None
+            ctx.indptr, ctx.indices = build_csr(p[key], p.n_owned, ctx.radius, wet)
         else:
             ctx.indptr = np.zeros(p.n_owned + 1, dtype=np.int64)
             ctx.indices = np.zeros(0, dtype=np.int64)

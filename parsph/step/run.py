@@ -160,7 +160,8 @@ def _build(scene, out, comm, petsc_args, restart):
     lay = layout(specs)
     ctx = Context(scene=scene, comm=comm, particles=particles, box=box, dim=dim, d=d, h=h,
                   radius=support_radius(h), layout=lay, key="X" if lay == "reference" else "x",
-                  materials=list(scene.materials.values()), restarted=ck is not None, out=out)
+                  materials=list(scene.materials.values()), restarted=ck is not None, out=out,
+                  wet_lists=uses_petsc(specs) and {s.name for s in specs} <= {"iisph", "coupled"})
     reuse = scene.fluid.preconditioner_reuse
     if lay == "current" and reuse > 1 and any(s.name == "iisph" for s in specs):
         ctx.skin, ctx.migrate_every = 0.5 * d, reuse
