@@ -37,6 +37,10 @@ def raise_if_any(comm, exc: BaseException | None) -> None:
     """
     from parsph.errors import ParsphError  # decomposition knows no physics, only the error type
 
+    if comm.size == 1:  # nothing to agree on (a step checks several times)
+        if exc is not None:
+            raise exc
+        return
     payload = None if exc is None else (type(exc).__name__, str(exc), isinstance(exc, ParsphError))
     gathered = comm.allgather(payload)
     for rank, item in enumerate(gathered):

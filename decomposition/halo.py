@@ -450,6 +450,15 @@ def _image_send_lists(comm, x, boxes_of, radius, shifts, with_self_zero):
     return send, send_shift
 
 
+def _local_halo(comm, rows, n_owned) -> Halo:
+    """The pattern of one rank without periodic images: ``rows`` copied to itself (what
+    :meth:`Halo.from_send_lists` would build, without its checks and its ``Alltoall``:
+    a coupled step builds two halos)."""
+    rows = np.asarray(rows, dtype=np.int64)
+    counts = np.array([rows.size], dtype=np.int64)
+    return Halo(comm, rows, counts, None, n_owned, counts.copy())
+
+
 def proximity_halo(comm, x_owned, select, radius: float, lo, hi, box=None) -> Halo:
     """Collective: send the selected owned rows to every rank whose box is within reach.
 
@@ -475,10 +484,17 @@ def proximity_halo(comm, x_owned, select, radius: float, lo, hi, box=None) -> Ha
     selected rows near the box. With a periodic ``box`` the periodic images of the rows
     are sent too (their ``x`` shifted by the exchange).
     """
-    boxes = comm.allgather((np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)))
     x = np.asarray(x_owned, dtype=float)
     rows = np.flatnonzero(np.asarray(select, dtype=bool))
     periodic = box is not None and box.any_periodic
+    if comm.size == 1 and not periodic:  # the selected rows near the box, copied to self
+        lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
+        if len(rows) and not np.any(lo > hi):
+            rows = rows[_near_box(x[rows], 0.0, lo, hi, radius)]
+        else:
+            rows = rows[:0]
+        return _local_halo(comm, rows, len(x))
+    boxes = comm.allgather((np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)))
     send, shift = _image_send_lists(comm, x[rows], [[b] for b in boxes], radius,
                                     _box_images(box, x.shape[-1]), True)
     return Halo.from_send_lists(comm, [rows[i] for i in send], shift if periodic else None,
@@ -509,6 +525,8 @@ def coupled_halo(comm, x_owned, solid, fluid, radius: float, box=None) -> Halo:
         Reach (m), the kernel support 2h.
     """
     x = np.asarray(x_owned, dtype=float)
+    if comm.size == 1 and not (box is not None and box.any_periodic):
+        return _local_halo(comm, np.zeros(0, dtype=np.int64), len(x))  # nothing to copy
     solid = np.asarray(solid, dtype=bool)
     fluid = np.asarray(fluid, dtype=bool)
     dim = x.shape[1] if x.ndim == 2 else 0

@@ -16,7 +16,8 @@ def agree(comm, error: tuple[type, str] | None, flag: int = 0) -> int:
     the lowest failing rank's, with the same type, so that no rank is left waiting in a
     later collective while another one has given up.
     """
-    gathered = comm.allgather((None if error is None else (error[0].__name__, error[1]), int(flag)))
+    item = None if error is None else (error[0].__name__, error[1])
+    gathered = [(item, int(flag))] if comm.size == 1 else comm.allgather((item, int(flag)))
     for rank, (item, _) in enumerate(gathered):
         if item is not None:
             name, message = item

@@ -104,10 +104,12 @@ class OperatorSystem(LinearSystem):
         n, bs = self.n_local_rows, self.block_size
         self._free_operator()
         self._u = np.empty((n + ghost_points.size, bs))
-        self._ghost_vec = PETSc.Vec().createWithArray(self._u[n:].reshape(-1),
-                                                      comm=PETSc.COMM_SELF)
-        self._ghost_is = PETSc.IS().createBlock(bs, ghost_points, comm=PETSc.COMM_SELF)
-        self._scatter = PETSc.Scatter().create(self._b, self._ghost_is, self._ghost_vec, None)
+        if self.comm.size > 1 or ghost_points.size:  # (creating a scatter is collective)
+            self._ghost_vec = PETSc.Vec().createWithArray(self._u[n:].reshape(-1),
+                                                          comm=PETSc.COMM_SELF)
+            self._ghost_is = PETSc.IS().createBlock(bs, ghost_points, comm=PETSc.COMM_SELF)
+            self._scatter = PETSc.Scatter().create(self._b, self._ghost_is, self._ghost_vec,
+                                                   None)
         self._apply = apply
         if self._mat is None:
             self._mat = PETSc.Mat().createPython(

@@ -455,8 +455,9 @@ def _checked_box(x):
             raise ValueError("positions contain NaN or infinity")
         lo3[3 - dim:] = lo
         hi3[3 - dim:] = hi
-    with np.errstate(over="ignore"):
-        extent = float(np.max(hi3 - lo3))
+    # Python floats: a span beyond float64 is inf, without numpy's overflow warning
+    extent = max(float(hi3[0]) - float(lo3[0]), float(hi3[1]) - float(lo3[1]),
+                 float(hi3[2]) - float(lo3[2]))
     if not np.isfinite(extent):
         raise ValueError("positions span a range too large for float64")
     return x, lo3, hi3, extent

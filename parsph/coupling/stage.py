@@ -28,7 +28,7 @@ import time
 
 import numpy as np
 
-from decomposition.reduce import global_max, global_min, global_sum
+from decomposition.reduce import global_max, global_reduce, global_sum
 from parsph.coupling.view import SolidView
 from parsph.scene.materials import PHASE_FLUID, PHASE_SOLID
 
@@ -292,10 +292,11 @@ class Coupled:
         ns, nf = int((phase == PHASE_SOLID).sum()), int((phase == PHASE_FLUID).sum())
         mine = p["fluidised"][:n] == 1
         vol = float((p["m"][:n][mine] / self.target_rho0).sum()) if mine.any() else 0.0
+        (vol,), (ns_max, nf_max), (ns_min, nf_min) = global_reduce(
+            comm, sums=(vol,), maxs=(ns, nf), mins=(ns, nf))
         self._stats.update(
-            n_solid_rank_min=global_min(comm, ns), n_solid_rank_max=global_max(comm, ns),
-            n_fluid_rank_min=global_min(comm, nf), n_fluid_rank_max=global_max(comm, nf),
-            fluidised_volume=global_sum(comm, vol))
+            n_solid_rank_min=int(ns_min), n_solid_rank_max=int(ns_max),
+            n_fluid_rank_min=int(nf_min), n_fluid_rank_max=int(nf_max), fluidised_volume=vol)
 
     def finish(self, ctx) -> None:
         self.fluid.destroy()

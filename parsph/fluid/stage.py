@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from decomposition.numbering import global_offset
-from decomposition.reduce import global_any, global_max, global_min, global_sum
+from decomposition.reduce import global_any, global_max, global_min, global_reduce, global_sum
 from parsph.fluid import assembly, response, rheology, viscous
 from parsph.fluid.ppe import ppe_csr
 from parsph.core.contact import wall_contact
@@ -561,7 +561,10 @@ class IISPH:
         inner = own_fluid & (free[:n] == 0)
         t_asm += time.perf_counter() - t0
 
-        comm = ctx.comm
+        (n_free, n_contacts, density_work, n_coupled), (max_div,), _ = global_reduce(
+            ctx.comm, sums=(int(free[:n][own_fluid].sum()), contacts, density_work,
+                            int(own_solid.sum())),
+            maxs=(float(np.abs(div[inner]).max()) if inner.any() else 0.0,))
         self._stats = {
             "viscous_number": zeta,
             "visc_iterations": info_v["iterations"],
@@ -569,11 +572,10 @@ class IISPH:
             "ppe_iterations": info_p["iterations"],
             "ppe_residual": info_p["residual_norm"],
             "ppe_setup": int(info_p["fresh_setup"]),
-            "n_free_surface": int(global_sum(comm, int(free[:n][own_fluid].sum()))),
-            "fluid_contacts": int(global_sum(comm, contacts)),
-            "max_divergence": global_max(comm, float(np.abs(div[inner]).max()) if inner.any()
-                                         else 0.0),
-            "density_work": global_sum(comm, density_work),
+            "n_free_surface": int(n_free),
+            "fluid_contacts": int(n_contacts),
+            "max_divergence": max_div,
+            "density_work": density_work,
             "wall_s_fluid_assembly": t_asm,
             "wall_s_fluid_solve": info_v["time_s"] + info_p["time_s"],
             "wall_s_visc_solve": info_v["time_s"],
@@ -581,7 +583,7 @@ class IISPH:
             "wall_s_fluid_halo": self._t_halo,
         }
         if coupled:
-            self._stats["n_coupled"] = int(global_sum(comm, int(own_solid.sum())))
+            self._stats["n_coupled"] = int(n_coupled)
 
     def stats(self) -> dict:
         """Iterations and residuals of both solves, free-surface count, timings of the last step."""

@@ -20,6 +20,11 @@ from parsph.errors import ParsphError
 
 def format_value(value) -> str:
     """The CSV text of one cell (empty for None)."""
+    kind = type(value)
+    if kind is float:  # the common cells first (a row a step): no ABC checks
+        return repr(value)  # nan too
+    if kind is int:
+        return str(value)
     if value is None:
         return ""
     if isinstance(value, (bool, np.bool_)):
@@ -63,6 +68,7 @@ class StatsWriter:
     def __init__(self, path, columns: list[str], enabled: bool, mode: str = "w"):
         self.path = os.fspath(path)
         self.columns = [str(c) for c in columns]
+        self._known = frozenset(self.columns)
         self.enabled = bool(enabled)
         self._fh = None
         if not self.columns:
@@ -109,7 +115,7 @@ class StatsWriter:
         ValueError
             If ``row`` has keys that are not columns (checked on every rank).
         """
-        unknown = [k for k in row if k not in self.columns]
+        unknown = [k for k in row if k not in self._known]
         if unknown:
             raise ValueError(f"stats row has unknown columns {unknown}; the columns of "
                              f"{self.path} are {self.columns} — add them when creating the "

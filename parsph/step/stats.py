@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from decomposition.reduce import global_max, global_min, global_sum
+from decomposition.reduce import global_reduce
 from parsph.core.particles import PHASE_FLUID, PHASE_SOLID, PHASE_WALL
 from parsph.step.pipeline import INFRASTRUCTURE
 
@@ -18,9 +18,11 @@ def kinetic_energy(ctx) -> tuple[float, float]:
     moving = p["phase"][:n] != PHASE_WALL
     v = p["v"][:n][moving]
     m = p["m"][:n][moving]
-    ke, mass = global_sum(ctx.comm, np.array([0.5 * float((m * (v * v).sum(axis=1)).sum()),
-                                              float(m.sum())]))
-    return float(ke), float(mass)
+    # the reduction of stats_row (the same sum in the same order: a restarted run's
+    # first energy budget is that of the uninterrupted run)
+    (ke, mass), _, _ = global_reduce(ctx.comm, sums=(0.5 * float((m * (v * v).sum(axis=1)).sum()),
+                                                     float(m.sum())))
+    return ke, mass
 
 
 def energy_budget(ke0, ke1, ee0, ee1, mass, g, dt, work=0.0) -> tuple[float, float]:
@@ -53,11 +55,13 @@ def stats_row(ctx, dt, stage_objs) -> dict:
     counts[5] = float(p["m"][:n][moving].sum())
     e = np.asarray(ctx.scene.output.front_direction or (1.0,) + (0.0,) * (ctx.dim - 1), float)
     along = p["x"][:n][moving] @ (e / np.linalg.norm(e))
-    counts = global_sum(comm, counts)
+    counts, (n_max, front, v2max), (n_min,) = global_reduce(
+        comm, sums=counts, mins=(n,),
+        maxs=(n, float(along.max()) if len(along) else -math.inf,
+              float(speed2.max()) if len(speed2) else 0.0))
+    n_max, n_min = int(n_max), int(n_min)
     ke = float(counts[4])
-    n_max, n_min = global_max(comm, n), global_min(comm, n)
-    front = global_max(comm, float(along.max()) if len(along) else -math.inf)
-    vmax = math.sqrt(global_max(comm, float(speed2.max()) if len(speed2) else 0.0))
+    vmax = math.sqrt(v2max)
     row = {"step": ctx.step, "time": ctx.time, "dt": dt,
            "n_particles": int(counts[0]), "n_solid": int(counts[1]), "n_fluid": int(counts[2]),
            "n_wall": int(counts[3]), "n_owned_min": n_min, "n_owned_max": n_max,
