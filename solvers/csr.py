@@ -13,12 +13,19 @@ __all__ = ["check_block", "sort_neighbours_by_row", "split_diagonal_block", "uni
            "scale_rows"]
 
 
+def sort_neighbours_by_row(indptr, indices, row, inplace=False):
+    """The CSR neighbour lists ``indices`` with each list sorted by the global row
+    ``row[j]`` of the neighbours: kernels that emit a row's entries in neighbour order
+    then produce sorted CSR rows (a repeated row, a periodic image, is adjacent). A copy,
+    or ``indices`` itself sorted with ``inplace`` (a list of the step's pairs less)."""
+    out = indices if inplace else indices.copy()
+    _sort_by_row(indptr, out, row)
+    return out
+
+
 @njit(cache=True)
-def sort_neighbours_by_row(indptr, indices, row):
-    """A copy of the CSR neighbour lists ``indices`` with each list sorted by the global
-    row ``row[j]`` of the neighbours: kernels that emit a row's entries in neighbour
-    order then produce sorted CSR rows (a repeated row, a periodic image, is adjacent)."""
-    out = indices.copy()
+def _sort_by_row(indptr, out, row):
+    """Insertion sort of each list of ``out`` by ``row`` (lists nearly sorted already)."""
     for i in range(indptr.shape[0] - 1):
         start, stop = indptr[i], indptr[i + 1]
         for p in range(start + 1, stop):
@@ -29,7 +36,6 @@ def sort_neighbours_by_row(indptr, indices, row):
                 out[q + 1] = out[q]
                 q -= 1
             out[q + 1] = j
-    return out
 
 
 @njit(cache=True)

@@ -183,7 +183,7 @@ def test_larger_random_set_and_halo_rows(dim):
 @pytest.mark.parametrize("dim", [1, 2, 3])
 def test_sparse_layout(monkeypatch, dim):
     """The sorted-occupied-cells layout (huge boxes) gives the same lists."""
-    import parsph.core.neighbours as nb
+    import parsph.core.cells as nb
 
     calls = []
     real = nb._sort_sparse

@@ -5,7 +5,7 @@
 particles near a solid (the solid's wall contact) paid for every solid–solid pair and a
 pass over the walls too (0.1 s per step of a 3.1e4-particle 3D coupled tank, as much
 as the neighbour lists of the whole step). Here only the targets are binned, on the
-same cells (:func:`parsph.core.neighbours._cell_size`, the same pruned slot ranges),
+same cells (:mod:`parsph.core.cells`, the same pruned slot ranges),
 and each query scans the target slots around it: the cost is the queries' candidate
 targets. A pair is a neighbour pair under the same test as ``build_csr`` (squared
 distance, summed over the axes in order, strictly below ``radius**2``), so the lists
@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from parsph.core.neighbours import _binned, _checked_box, _pad_coords, _ranges
+from parsph.core.cells import _binned, _checked_box, _pad_coords, _ranges
 
 __all__ = ["build_cross_csr"]
 

@@ -10,8 +10,9 @@ the neighbours of row ``i`` are ``indices[indptr[i]:indptr[i + 1]]``.
 Algorithm
 ---------
 1. Bounding box of ``x``; cubic cells of side ``radius`` (enlarged by a relative
-   margin that absorbs floating-point rounding, see :func:`_cell_size`), so that every
-   neighbour of a particle lies in one of the :math:`3^D` cells around its own.
+   margin that absorbs floating-point rounding, see
+   :func:`parsph.core.cells._cell_size`), so that every neighbour of a particle lies in
+   one of the :math:`3^D` cells around its own.
    Dimensions below 3 are padded with leading zero coordinates: one 3D code path
    serves 1D, 2D and 3D.
 2. Particles are sorted by cell with a counting sort over the dense grid (or, when
@@ -51,226 +52,16 @@ import operator
 import numpy as np
 from numba import njit
 
+from parsph.core.cells import _MAX_CELLS_PER_AXIS, _binned, _checked_box, _pad_coords, _ranges
+
 __all__ = ["build_csr", "cell_order", "pair_count", "row_lengths", "row_of_pairs"]
 
-#: Dense grids are allowed up to ``_DENSE_PER_PARTICLE * N + _DENSE_MIN`` cells.
-_DENSE_PER_PARTICLE = 16
-_DENSE_MIN = 1 << 16
-#: Cells per axis are capped (coarser cells beyond) so coordinates stay exact int64.
-_MAX_CELLS_PER_AXIS = 1 << 50
 _INT32_MAX = np.iinfo(np.int32).max
-#: Cells are ``radius / _REACH`` wide and the search spans ``_REACH`` cells each way.
-#: Finer cells (2, 3) cut the candidates (134, 101 against 262 per particle on a 3D
-#: lattice, h = 1.2 d) but cost more in range set-up: not faster when measured.
-_REACH = 1
 #: The fill pass scatters (rows come out sorted) unless the rows are in a spatially
 #: incoherent order and the lists outgrow the caches; then it gathers and sorts each
 #: row, which measured 2x faster for 1e6 particles in random order (same result).
 _GATHER_MIN_PAIRS = 1 << 24
 _GATHER_DISORDER = 0.08
-
-
-# --------------------------------------------------------------------------- helpers
-
-
-@njit(cache=True)
-def _bounds(x):
-    """Per-axis minimum and maximum of ``x`` and whether all entries are finite."""
-    n, dim = x.shape
-    lo = np.empty(dim)
-    hi = np.empty(dim)
-    for a in range(dim):
-        lo[a] = np.inf
-        hi[a] = -np.inf
-    finite = True
-    for i in range(n):
-        for a in range(dim):
-            v = x[i, a]
-            if not np.isfinite(v):
-                finite = False
-            if v < lo[a]:
-                lo[a] = v
-            if v > hi[a]:
-                hi[a] = v
-    return lo, hi, finite
-
-
-def _cell_size(radius, extent, reach):
-    """Cell side: ``radius / reach`` enlarged by the rounding margin of the grid.
-
-    Cell coordinates ``(x - lo) / cell`` carry a rounding error of about
-    ``2 eps (extent / cell + 1)`` cells, and the squared-distance test admits pairs up
-    to ``radius (1 + 2 eps)``; enlarging the cell by a relative ``delta`` larger than
-    both keeps every neighbour within ``reach`` cells along each axis (and within the
-    pruning distance of :func:`_ranges`). Cells are also made coarse enough for at most
-    ``_MAX_CELLS_PER_AXIS`` cells per axis.
-    """
-    eps = np.finfo(np.float64).eps
-    delta = max(1e-12, 8.0 * eps * (extent / radius + 2.0))
-    return max(radius * (1.0 + delta) / reach, extent / float(_MAX_CELLS_PER_AXIS - 2))
-
-
-@njit(cache=True)
-def _pad_coords(x, lo, inv_cell, ncell):
-    """Padded (N, 3) positions and clamped integer (N, 3) cell coordinates.
-
-    ``lo`` and ``ncell`` are padded to 3 axes (leading axes: 0 and 1); the cell of a
-    position is computed exactly as in :func:`_ranges`.
-    """
-    n, dim = x.shape
-    off = 3 - dim
-    xp = np.zeros((n, 3))
-    cc = np.zeros((n, 3), dtype=np.int64)
-    for i in range(n):
-        for a in range(dim):
-            xp[i, off + a] = x[i, a]
-        for b in range(3):
-            c = np.int64((xp[i, b] - lo[b]) * inv_cell)
-            cc[i, b] = min(max(c, 0), ncell[b] - 1)
-    return xp, cc
-
-
-@njit(cache=True)
-def _sort_dense(xp, cc, ncell):
-    """Counting sort by linear cell id over the dense grid.
-
-    Returns ``order`` (slot -> row), ``rank_of`` (row -> slot), ``xs`` (padded
-    positions in slot order) and ``start`` (``ncells + 1``): the slots of linear cell
-    ``c`` are ``start[c]:start[c + 1]``.
-    """
-    n = xp.shape[0]
-    n1, n2 = ncell[1], ncell[2]
-    ntot = ncell[0] * n1 * n2
-    start = np.zeros(ntot + 1, dtype=np.int64)
-    cid = np.empty(n, dtype=np.int64)
-    for i in range(n):
-        c = (cc[i, 0] * n1 + cc[i, 1]) * n2 + cc[i, 2]
-        cid[i] = c
-        start[c + 1] += 1
-    for c in range(ntot):
-        start[c + 1] += start[c]
-    cursor = start[:-1].copy()
-    order = np.empty(n, dtype=np.int32)
-    rank_of = np.empty(n, dtype=np.int32)
-    xs = np.empty((n, 3))
-    for i in range(n):
-        s = cursor[cid[i]]
-        cursor[cid[i]] = s + 1
-        order[s] = i
-        rank_of[i] = s
-        xs[s, 0] = xp[i, 0]
-        xs[s, 1] = xp[i, 1]
-        xs[s, 2] = xp[i, 2]
-    return order, rank_of, xs, start
-
-
-def _sort_sparse(xp, cc):
-    """Lexicographic sort by cell coordinates (memory O(N) for any box).
-
-    Returns ``order``, ``rank_of``, ``xs`` as :func:`_sort_dense`, the occupied cells'
-    coordinates ``cells`` (n_occupied, 3), sorted lexicographically, and
-    ``cell_start`` (n_occupied + 1): the slots of occupied cell ``u``.
-    """
-    n = xp.shape[0]
-    order = np.lexsort((cc[:, 2], cc[:, 1], cc[:, 0]))
-    sc = cc[order]
-    new = np.empty(n, dtype=bool)
-    new[0] = True
-    np.any(sc[1:] != sc[:-1], axis=1, out=new[1:])
-    first = np.flatnonzero(new)
-    cells = np.ascontiguousarray(sc[first])
-    cell_start = np.append(first, n).astype(np.int64)
-    rank_of = np.empty(n, dtype=np.int32)
-    rank_of[order] = np.arange(n, dtype=np.int32)
-    xs = np.ascontiguousarray(xp[order])
-    return order.astype(np.int32), rank_of, xs, cells, cell_start
-
-
-@njit(cache=True)
-def _lex_less(cells, u, a, b, c):
-    """Whether occupied cell ``u`` precedes the coordinate triple (a, b, c)."""
-    if cells[u, 0] != a:
-        return cells[u, 0] < a
-    if cells[u, 1] != b:
-        return cells[u, 1] < b
-    return cells[u, 2] < c
-
-
-@njit(cache=True)
-def _lower_bound(cells, a, b, c):
-    """First occupied cell not preceding (a, b, c) (binary search)."""
-    lo = 0
-    hi = cells.shape[0]
-    while lo < hi:
-        mid = (lo + hi) >> 1
-        if _lex_less(cells, mid, a, b, c):
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo
-
-
-@njit(cache=True)
-def _ranges(xs, s, lo, inv_cell, ncell, reach, sparse, start, cells, cell_start, gap2, rng):
-    """Slot ranges holding every possible neighbour of slot ``s``; returns their number.
-
-    The cells within ``reach`` cells of the particle's own cell are pruned to those
-    whose distance from the particle is below ``reach`` cells (the search radius plus
-    the rounding margin of :func:`_cell_size`); along the last axis the surviving cells
-    of a column are contiguous in slot order, giving one range ``rng[k]`` per column.
-    ``gap2`` is scratch of shape (3, 2 reach + 1).
-    """
-    r2c = float(reach * reach)
-    c0 = 0
-    c1 = 0
-    c2 = 0
-    for ax in range(3):
-        # squared distance, in cell units, from the particle to the cells at offset
-        # -reach..reach along axis ``ax``; the cell is computed as in _pad_coords
-        g = (xs[s, ax] - lo[ax]) * inv_cell
-        c = min(max(np.int64(g), 0), ncell[ax] - 1)
-        gap2[ax, reach] = 0.0
-        for d in range(1, reach + 1):
-            up = (c + d) - g
-            up = up if up > 0.0 else 0.0
-            dn = g - (c - d + 1)
-            dn = dn if dn > 0.0 else 0.0
-            gap2[ax, reach + d] = up * up
-            gap2[ax, reach - d] = dn * dn
-        if ax == 0:
-            c0 = c
-        elif ax == 1:
-            c1 = c
-        else:
-            c2 = c
-    n1 = ncell[1]
-    n2 = ncell[2]
-    k = 0
-    # branch-free pruning: a pruned column gives an empty range, which is not kept
-    for a in range(max(c0 - reach, 0), min(c0 + reach, ncell[0] - 1) + 1):
-        ga = gap2[0, a - c0 + reach]
-        for b in range(max(c1 - reach, 0), min(c1 + reach, n1 - 1) + 1):
-            gab = ga + gap2[1, b - c1 + reach]
-            n_lo = 0
-            n_hi = 0
-            for d in range(1, reach + 1):
-                n_lo += gab + gap2[2, reach - d] < r2c
-                n_hi += gab + gap2[2, reach + d] < r2c
-            z_lo = max(c2 - n_lo, 0)
-            z_hi = min(c2 + n_hi, n2 - 1) + 1  # exclusive
-            if gab >= r2c:
-                z_hi = z_lo
-            if sparse:
-                first = cell_start[_lower_bound(cells, a, b, z_lo)]
-                last = cell_start[_lower_bound(cells, a, b, z_hi)]
-            else:
-                base = (a * n1 + b) * n2
-                first = start[base + z_lo]
-                last = start[base + z_hi]
-            rng[k, 0] = first
-            rng[k, 1] = last
-            k += last > first
-    return k
 
 
 @njit(cache=True)
@@ -436,53 +227,6 @@ def _disorder(order):
     for s in range(1, n):
         acc += abs(order[s] - order[s - 1])
     return acc / max(n - 1, 1) / max(n, 1)
-
-
-def _checked_box(x):
-    """C-contiguous float64 positions and their padded (3,) bounding box.
-
-    Raises ``ValueError`` on a bad shape, non-finite entries or a span beyond float64.
-    """
-    x = np.ascontiguousarray(x, dtype=np.float64)
-    if x.ndim != 2 or x.shape[1] not in (1, 2, 3):
-        raise ValueError(f"positions must have shape (N, dim) with dim 1, 2 or 3, got {x.shape}")
-    dim = x.shape[1]
-    lo3 = np.zeros(3)
-    hi3 = np.zeros(3)
-    if x.shape[0]:
-        lo, hi, finite = _bounds(x)
-        if not finite:
-            raise ValueError("positions contain NaN or infinity")
-        lo3[3 - dim:] = lo
-        hi3[3 - dim:] = hi
-    # Python floats: a span beyond float64 is inf, without numpy's overflow warning
-    extent = max(float(hi3[0]) - float(lo3[0]), float(hi3[1]) - float(lo3[1]),
-                 float(hi3[2]) - float(lo3[2]))
-    if not np.isfinite(extent):
-        raise ValueError("positions span a range too large for float64")
-    return x, lo3, hi3, extent
-
-
-def _binned(x, lo3, hi3, extent, radius):
-    """The rows of ``x`` sorted into the cells of the box ``lo3``..``hi3`` (extent
-    ``extent``) for ``radius``: ``order`` (slot -> row), ``rank_of`` (row -> slot), ``xs``
-    (padded positions in slot order) and ``grid``, the arguments of :func:`_ranges` after
-    the position (dense grid, or sorted occupied cells when it would be too large)."""
-    reach = _REACH
-    cell = _cell_size(radius, extent, reach)
-    ncell = (np.floor((hi3 - lo3) / cell) + 1.0).astype(np.int64)
-    n_dense = int(ncell[0]) * int(ncell[1]) * int(ncell[2])  # Python ints: exact
-    sparse = n_dense > _DENSE_PER_PARTICLE * x.shape[0] + _DENSE_MIN
-    inv_cell = 1.0 / cell
-    xp, cc = _pad_coords(x, lo3, inv_cell, ncell)
-    if sparse:
-        order, rank_of, xs, cells, cell_start = _sort_sparse(xp, cc)
-        start = np.zeros(1, dtype=np.int64)
-    else:
-        order, rank_of, xs, start = _sort_dense(xp, cc, ncell)
-        cells = np.zeros((1, 3), dtype=np.int64)
-        cell_start = np.zeros(1, dtype=np.int64)
-    return order, rank_of, xs, (lo3, inv_cell, ncell, reach, sparse, start, cells, cell_start)
 
 
 def _running_count(flags):

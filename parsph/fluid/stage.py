@@ -378,8 +378,11 @@ class IISPH:
         t0 = time.perf_counter()
         x = p["x"]
         m = coupling.mass if coupled else p["m"]
-        # neighbours in global row order: the matrix rows come out (nearly) sorted
-        indptr, indices = ctx.indptr, sort_neighbours_by_row(ctx.indptr, ctx.indices, row)
+        # neighbours in global row order: the matrix rows come out (nearly) sorted. In
+        # place: nothing reads the lists in ascending order after this (they are built
+        # afresh for the next step)
+        indptr, indices = ctx.indptr, sort_neighbours_by_row(ctx.indptr, ctx.indices, row,
+                                                             inplace=True)
         slip = p["wall_slip"]
         rho, rho0 = p["rho"], p["rho0"]
         free = p["free_surface"]
