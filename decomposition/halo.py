@@ -163,6 +163,8 @@ class Halo:
 
     @classmethod
     def _from_flat(cls, comm, flat, send_counts, send_shift, n_owned) -> "Halo":
+        if comm.size == 1:  # what it sends itself is what it receives
+            return cls(comm, flat, send_counts, send_shift, n_owned, send_counts.copy())
         send32 = send_counts.astype(np.int32)
         recv32 = np.empty_like(send32)
         comm.Alltoall(send32, recv32)
@@ -450,15 +452,6 @@ def _image_send_lists(comm, x, boxes_of, radius, shifts, with_self_zero):
     return send, send_shift
 
 
-def _local_halo(comm, rows, n_owned) -> Halo:
-    """The pattern of one rank without periodic images: ``rows`` copied to itself (what
-    :meth:`Halo.from_send_lists` would build, without its checks and its ``Alltoall``:
-    a coupled step builds two halos)."""
-    rows = np.asarray(rows, dtype=np.int64)
-    counts = np.array([rows.size], dtype=np.int64)
-    return Halo(comm, rows, counts, None, n_owned, counts.copy())
-
-
 def proximity_halo(comm, x_owned, select, radius: float, lo, hi, box=None) -> Halo:
     """Collective: send the selected owned rows to every rank whose box is within reach.
 
@@ -487,13 +480,6 @@ def proximity_halo(comm, x_owned, select, radius: float, lo, hi, box=None) -> Ha
     x = np.asarray(x_owned, dtype=float)
     rows = np.flatnonzero(np.asarray(select, dtype=bool))
     periodic = box is not None and box.any_periodic
-    if comm.size == 1 and not periodic:  # the selected rows near the box, copied to self
-        lo, hi = np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)
-        if len(rows) and not np.any(lo > hi):
-            rows = rows[_near_box(x[rows], 0.0, lo, hi, radius)]
-        else:
-            rows = rows[:0]
-        return _local_halo(comm, rows, len(x))
     boxes = comm.allgather((np.asarray(lo, dtype=float), np.asarray(hi, dtype=float)))
     send, shift = _image_send_lists(comm, x[rows], [[b] for b in boxes], radius,
                                     _box_images(box, x.shape[-1]), True)
@@ -525,8 +511,9 @@ def coupled_halo(comm, x_owned, solid, fluid, radius: float, box=None) -> Halo:
         Reach (m), the kernel support 2h.
     """
     x = np.asarray(x_owned, dtype=float)
-    if comm.size == 1 and not (box is not None and box.any_periodic):
-        return _local_halo(comm, np.zeros(0, dtype=np.int64), len(x))  # nothing to copy
+    if comm.size == 1 and not (box is not None and box.any_periodic):  # nothing to copy
+        return Halo._from_flat(comm, np.zeros(0, dtype=np.int64), np.zeros(1, dtype=np.int64),
+                               None, len(x))
     solid = np.asarray(solid, dtype=bool)
     fluid = np.asarray(fluid, dtype=bool)
     dim = x.shape[1] if x.ndim == 2 else 0

@@ -20,8 +20,8 @@ def kinetic_energy(ctx) -> tuple[float, float]:
     m = p["m"][:n][moving]
     # the reduction of stats_row (the same sum in the same order: a restarted run's
     # first energy budget is that of the uninterrupted run)
-    (ke, mass), _, _ = global_reduce(ctx.comm, sums=(0.5 * float((m * (v * v).sum(axis=1)).sum()),
-                                                     float(m.sum())))
+    ke = 0.5 * float((m * (v * v).sum(axis=1)).sum())
+    (ke, mass), _, _ = global_reduce(ctx.comm, sums=(ke, float(m.sum())))
     return ke, mass
 
 
