@@ -10,7 +10,7 @@ from decomposition import raise_if_any
 from decomposition.exchange import migrate
 from decomposition.halo import Halo, coupled_halo
 from decomposition.partition import RCB, imbalance
-from decomposition.reduce import global_any, global_sum
+from decomposition.reduce import global_any, global_reduce
 from parsph.core.neighbours import build_csr
 from parsph.core.particles import PHASE_FLUID, PHASE_SOLID, PHASE_WALL
 from parsph.errors import NumericalError
@@ -93,35 +93,46 @@ def _distribute(ctx, force: bool = False) -> None:
         phase, x = owned["phase"], owned["x"]
         solid, wall = phase == PHASE_SOLID, phase == PHASE_WALL
         fluid = ~solid & ~wall
-        # the walls do not move: a partition of their own, built once. One partition for
-        # walls and fluid balanced their summed work, not the fluid: aso_like at d = 4 m
-        # had 6 and 1,684 fluid rows on its 2 ranks (docs/decomposition.md)
+        # the walls do not move: a partition of their own, built once, balancing them
+        # alone. One partition for walls and fluid balanced their summed work, not the
+        # fluid: aso_like at d = 4 m had 6 and 1,684 fluid rows on its 2 ranks
+        # (docs/decomposition.md)
         if force or ctx.rcb_wall is None:
             ctx.rcb_wall = RCB.build(comm, x[wall], ctx.box)
-        # per rank, in one reduction: the solids it owns, and the fluid rows it would own
+        # per rank, in one reduction: the solids it owns, the fluid rows it would own
         # under the present cuts (those that fluidised in the last step are still on the
-        # rank that held them as solids)
-        counts = np.zeros((2, comm.size), dtype=np.int64)
+        # rank that held them as solids), and the fluid's bounding box
+        counts = np.zeros((2, comm.size))
         counts[0, comm.rank] = solid.sum()
         to = None if ctx.rcb is None else ctx.rcb.owner(x[fluid])
         if to is None:
             counts[1, comm.rank] = fluid.sum()
         else:
             counts[1] = np.bincount(to, minlength=comm.size)
-        counts = global_sum(comm, counts)
+        xf = x[fluid]
+        hi, lo = ((xf.max(axis=0), xf.min(axis=0)) if len(xf) else
+                  (np.full(ctx.dim, -np.inf), np.full(ctx.dim, np.inf)))
+        sums, hi, lo = global_reduce(comm, counts.ravel(), hi, lo)
+        counts = np.asarray(sums).reshape(2, comm.size).astype(np.int64)
         # the solids' partition is fixed by X, but the phase change empties the ranks
         # that hold the failing toe: rebuilt when their counts drift past the tolerance
         if force or ctx.rcb_ref is None or _unbalanced(counts[0], tolerance):
             ctx.solids_moved = ctx.rcb_ref is not None
             ctx.rcb_ref = RCB.build(comm, owned["X"][solid], ctx.box)
         n_fluid = int(counts[1].sum())
-        if force or to is None or (n_fluid and _unbalanced(counts[1], tolerance)):
+        rebuilt = force or to is None or (n_fluid and _unbalanced(counts[1], tolerance))
+        if rebuilt:
             # before any soil fluidises: the walls' cuts (a fluid row's owner is defined)
-            ctx.rcb = RCB.build(comm, x[fluid], ctx.box) if n_fluid else ctx.rcb_wall
-            to = ctx.rcb.owner(x[fluid])
+            ctx.rcb = RCB.build(comm, xf, ctx.box) if n_fluid else ctx.rcb_wall
+            to = ctx.rcb.owner(xf)
         dest = np.empty(len(phase), dtype=np.int32)
         dest[solid] = ctx.rcb_ref.owner(owned["X"][solid])
-        dest[wall] = ctx.rcb_wall.owner(x[wall])
+        # the halo follows the rows' boxes (coupled_halo), so any owner is correct: between
+        # sync steps strays stay, and so do the walls
+        if not rebuilt and _lazy(ctx) and _keep_strays(ctx, xf, to):
+            dest[wall] = comm.rank
+        else:
+            dest[wall] = _wall_owner(ctx, x[wall], np.asarray(lo), np.asarray(hi))
         dest[fluid] = to
         p.set_owned(migrate(comm, owned, dest))
         return
@@ -129,12 +140,36 @@ def _distribute(ctx, force: bool = False) -> None:
     if rebuilt:
         ctx.rcb = RCB.build(comm, owned[key], ctx.box, weights=work)
     dest = ctx.rcb.owner(owned[key])
-    if ctx.skin > 0 and not rebuilt and not ctx.sync_point and ctx.step % ctx.migrate_every:
+    if not rebuilt and _lazy(ctx):
         _keep_strays(ctx, owned[key], dest)
     p.set_owned(migrate(comm, owned, dest))
 
 
-def _keep_strays(ctx, x, dest) -> None:
+def _lazy(ctx) -> bool:
+    """Whether this step's migration may leave strays where they are (not a sync step)."""
+    return ctx.skin > 0 and not ctx.sync_point and bool(ctx.step % ctx.migrate_every)
+
+
+def _wall_owner(ctx, x, lo, hi) -> np.ndarray:
+    """Owner of each wall row: the fluid's partition within ``2 ctx.radius`` of the
+    fluid's bounding box ``[lo, hi]`` (a wet wall is owned with the fluid it bounds), the
+    walls' own partition elsewhere.
+
+    A wall row of the PPE and of the viscous system only extrapolates its fluid
+    neighbours (Adami et al. 2012). Owned by another rank than they are, its O(1)
+    couplings cross the ranks, where BoomerAMG's smoothing and coarsening see them
+    weakly: the 3D tank of ``jobs/bench_memory.py`` (its water on 2 ranks, its floor cut
+    by the walls' partition) took 11 PPE iterations on 2 ranks and 8 on one, the
+    viscous solve 5 and 4; with the walls under the fluid's cuts, 8 and 4 on both. The
+    box and the cuts depend only on the global state, so a restart owns alike."""
+    near = np.all((x >= lo - 2 * ctx.radius) & (x <= hi + 2 * ctx.radius), axis=1)
+    owner = ctx.rcb_wall.owner(x)
+    if near.any():
+        owner[near] = ctx.rcb.owner(x[near])
+    return owner
+
+
+def _keep_strays(ctx, x, dest) -> bool:
     """Collective: lagged migration. Rows that left their rank's sub-box stay (``dest`` is
     set to this rank) while every stray on every rank is within ``ctx.skin`` of its
     owner's sub-box; the halo is ``ctx.skin`` wider, so every neighbour within 2h of a
@@ -145,8 +180,10 @@ def _keep_strays(ctx, x, dest) -> None:
     lo, hi = ctx.rcb.subbox(me)
     gap = np.maximum(0.0, np.maximum(lo - x[stray], x[stray] - hi))
     far = bool(((gap * gap).sum(axis=1) > ctx.skin * ctx.skin).any())
-    if not global_any(ctx.comm, far):
-        dest[stray] = me
+    if global_any(ctx.comm, far):
+        return False
+    dest[stray] = me
+    return True
 
 
 def refresh(ctx, force_partition: bool = False) -> None:

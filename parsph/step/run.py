@@ -163,7 +163,9 @@ def _build(scene, out, comm, petsc_args, restart):
                   materials=list(scene.materials.values()), restarted=ck is not None, out=out,
                   wet_lists=uses_petsc(specs) and {s.name for s in specs} <= {"iisph", "coupled"})
     reuse = scene.fluid.preconditioner_reuse
-    if lay == "current" and reuse > 1 and any(s.name == "iisph" for s in specs):
+    # lazy migration keeps the PPE's rows, so its lagged set-up (docs/decomposition.md)
+    if reuse > 1 and (lay == "mixed" or (lay == "current" and any(s.name == "iisph"
+                                                                  for s in specs))):
         ctx.skin, ctx.migrate_every = 0.5 * d, reuse
     if uses_petsc(specs):  # the PPE's lagged preconditioner is renewed every `reuse` steps
         ctx.sync_every = max(1, reuse)
