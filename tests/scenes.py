@@ -237,6 +237,26 @@ def stats_rows(out):
         return list(csv.DictReader(fh))
 
 
+def count_kept_strays(monkeypatch, layout=None):
+    """Spy on lazy migration (``parsph.step.refresh._keep_strays``): the returned list
+    gets, per call (of a context in ``layout``, default any), the number of rows that
+    left their rank's sub-box and were kept."""
+    import parsph.step.refresh as refresh_module
+
+    kept = []
+    keep = refresh_module._keep_strays
+
+    def spy(ctx, x, dest):
+        before = int((dest != ctx.comm.rank).sum())
+        result = keep(ctx, x, dest)
+        if layout is None or ctx.layout == layout:
+            kept.append(before - int((dest != ctx.comm.rank).sum()))
+        return result
+
+    monkeypatch.setattr(refresh_module, "_keep_strays", spy)
+    return kept
+
+
 def by_id(frame):
     """A frame's fields ordered by global id."""
     import numpy as np

@@ -542,21 +542,10 @@ def test_coupled_lagged_setup_keeps_strays_and_agrees_with_fresh(comm, mpi_tmp_p
     (the coupled halo follows the rows' boxes, so any owner is correct), the PPE is set
     up afresh only every 4th step, and the run agrees with one that migrates and sets up
     every step (docs/decomposition.md)."""
-    import parsph.step.refresh as refresh_module
     from parsph.io import read_frame, read_frames, read_stats
-    from tests.scenes import by_id
+    from tests.scenes import by_id, count_kept_strays
 
-    kept = []
-    keep = refresh_module._keep_strays
-
-    def spy(ctx, x, dest):
-        before = int((dest != ctx.comm.rank).sum())
-        result = keep(ctx, x, dest)
-        if ctx.layout == "mixed":
-            kept.append(before - int((dest != ctx.comm.rank).sum()))
-        return result
-
-    monkeypatch.setattr(refresh_module, "_keep_strays", spy)
+    kept = count_kept_strays(monkeypatch, layout="mixed")
     base = ["output.progress=false", "run.end_time=0.1", "output.every=0.1",
             "fluid.ppe_rtol=1e-11", "fluid.visc_rtol=1e-11"]
     lagged = os.path.join(mpi_tmp_path, "lagged")

@@ -507,18 +507,9 @@ def test_lagged_amg_setup_and_migration_agree_with_fresh_ones(comm, mpi_tmp_path
     """fluid.preconditioner_reuse = 4 (the default) on 2 ranks: an AMG set-up every 4th
     step, particles that cross the cut stay with their rank (within d/2) until the next
     set-up, and the run agrees with one that sets up and migrates every step."""
-    import parsph.step.refresh as run_module
+    from tests.scenes import count_kept_strays
 
-    kept = []
-    keep = run_module._keep_strays
-
-    def spy(ctx, x, dest):
-        before = int((dest != ctx.comm.rank).sum())
-        result = keep(ctx, x, dest)
-        kept.append(before - int((dest != ctx.comm.rank).sum()))
-        return result
-
-    monkeypatch.setattr(run_module, "_keep_strays", spy)
+    kept = count_kept_strays(monkeypatch)
     # the PPE solved far below its default tolerance: the comparison then measures the
     # lagged set-up and the kept strays, not the tolerance (at 1e-8 the no-penetration
     # wall rows let the runs drift apart by 3e-8 m in 0.1 s)

@@ -172,8 +172,9 @@ def _wall_owner(ctx, x, lo, hi) -> np.ndarray:
 def _keep_strays(ctx, x, dest) -> bool:
     """Collective: lagged migration. Rows that left their rank's sub-box stay (``dest`` is
     set to this rank) while every stray on every rank is within ``ctx.skin`` of its
-    owner's sub-box; the halo is ``ctx.skin`` wider, so every neighbour within 2h of a
-    stray still reaches it. Unchanged rows keep the PPE's AMG set-up
+    owner's sub-box (True), else changes nothing (False). In the current layout the
+    halo is ``ctx.skin`` wider, so every neighbour within 2h of a stray still reaches it;
+    the coupled halo follows the rows' boxes. Unchanged rows keep the PPE's AMG set-up
     (``fluid.preconditioner_reuse``); strays move every ``ctx.migrate_every`` steps."""
     me = ctx.comm.rank
     stray = np.nonzero(dest != me)[0]
