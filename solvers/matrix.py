@@ -1,7 +1,8 @@
 """The matrix side of :class:`solvers.system.LinearSystem`: assembly, pattern reuse, null space.
 
-Bulk assembly from triplets or a CSR block, the exact preallocation, the two sets of
-work arrays, the null space and the product operator of the strong coupling.
+Bulk assembly from triplets or a CSR block, the exact preallocation, the work arrays of
+the matrices built on arrays, the null space and the product operator of the strong
+coupling.
 
 Notes
 -----
@@ -234,9 +235,8 @@ class MatrixAssembly:
             # PETSc takes the arrays as they are (MatCreateSeqAIJWithArrays, or
             # MatCreateMPIAIJWithSplitArrays after a numba split into the diagonal and
             # off-diagonal blocks): no row-by-row insertion. 2.0e5 rows: 33 -> 4 ms on 1
-            # rank, 23 -> 9 ms on 2. The matrix keeps references to its arrays, which
-            # come from one of two sets used in turn (see _array): the matrix of the build
-            # before last, the last user of this set, has been destroyed.
+            # rank, 23 -> 9 ms on 2. The matrix keeps references to its arrays, which are
+            # the last matrix's (see _array): that one is destroyed below, unread since.
             nnz = indices.size
             if self.comm.size == 1:
                 ptr = self._array("ptr", indptr.size, indptr.dtype)
@@ -283,14 +283,17 @@ class MatrixAssembly:
         self.n_builds += 1
 
     def _array(self, name: str, size: int, dtype) -> np.ndarray:
-        """Work array ``name`` of ``size`` entries from the set of this build.
+        """Work array ``name`` of ``size`` entries for the matrix of this build.
 
-        Two sets are used in turn, one per build: a matrix created on arrays (block size
-        1) keeps using them until it is destroyed, which happens in the next build, so
-        the build after that may overwrite them. Reused arrays spare the page faults of
-        fresh ones (see :func:`solvers.csr.split_diagonal_block`). Grown by a quarter
-        when too small."""
-        store = self._array_sets[self.n_builds % 2]
+        One set of arrays serves every build: the new matrix is written over the last
+        one's arrays. That matrix is destroyed in the same build and nothing reads it
+        after the new values are written (the KSP gets the new operator before its next
+        set-up or solve; a lagged BoomerAMG set-up and the coupled product hold copies of
+        their own). A second set, used in turn, had cost 12 bytes per entry on one rank
+        and 28 on several, for each system (docs/solvers.md). Reused arrays spare the
+        page faults of fresh ones (see :func:`solvers.csr.split_diagonal_block`). Grown
+        by a quarter when too small."""
+        store = self._array_sets
         a = store.get(name)
         if a is None or a.size < size or a.dtype != np.dtype(dtype):
             a = np.empty(size + size // 4, dtype=dtype)

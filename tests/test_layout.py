@@ -96,3 +96,22 @@ def test_public_api_runs_a_scene(mpi_tmp_path, comm):
     assert os.path.exists(os.path.join(mpi_tmp_path, "out", "particles.h5"))
     with pytest.raises(AttributeError):
         parsph.no_such_thing  # noqa: B018
+
+
+def test_test_modules_are_dealt_to_balanced_shards():
+    """The one-rank session's shards (scripts/test.sh, PARSPH_TEST_SHARD): every test
+    module in exactly one shard, the same deal in every process, each module's cost
+    known (a new module gets a measured figure in MODULE_SECONDS), and the two shards'
+    costs within 10 % of each other."""
+    from conftest import MODULE_SECONDS, shard_of_modules
+
+    modules = sorted(name[:-3] for name in os.listdir(os.path.join(ROOT, "tests"))
+                     if name.startswith("test_") and name.endswith(".py"))
+    deal = shard_of_modules(modules, 2)
+    assert deal == shard_of_modules(list(reversed(modules)), 2)
+    assert sorted(deal) == modules and set(deal.values()) == {0, 1}
+    cheap = {"test_benchlib", "test_geometry", "test_geotiff", "test_layout", "test_loading",
+             "test_mesh", "test_scene"}  # under a second each
+    assert set(modules) - set(MODULE_SECONDS) == cheap
+    load = [sum(MODULE_SECONDS.get(m, 1.0) for m in modules if deal[m] == k) for k in (0, 1)]
+    assert max(load) <= 1.1 * min(load), load

@@ -215,9 +215,9 @@ class IISPH:
         """Work arrays ``(indptr, cols, values)`` for a CSR block of ``system``'s owned rows
         with room for ``capacity`` entries, kept from step to step (fresh arrays of this
         size would be allocated and page-faulted anew every step); grown by a quarter
-        when too small. ``cols`` has PETSc's index type. ``key`` (default: the system's
-        prefix) names the set."""
-        key = key or system.prefix
+        when too small. ``cols`` has PETSc's index type. ``key`` names the set; the PPE
+        and the viscous system share the default one (each copies its block)."""
+        key = key or "csr"
         ptr, cols, vals = self._buffers.get(key, (None, None, None))
         if ptr is None or ptr.size != system.n_local + 1:
             ptr = np.zeros(system.n_local + 1, dtype=system.index_dtype)
