@@ -293,7 +293,7 @@ class MatrixAssembly:
         and 28 on several, for each system (docs/solvers.md). Reused arrays spare the
         page faults of fresh ones (see :func:`solvers.csr.split_diagonal_block`). Grown
         by a quarter when too small."""
-        store = self._array_sets
+        store = self._arrays
         a = store.get(name)
         if a is None or a.size < size or a.dtype != np.dtype(dtype):
             a = np.empty(size + size // 4, dtype=dtype)

@@ -179,7 +179,7 @@ class LinearSystem(MatrixAssembly):
         self._product = None  # an operator matrix + L^T R (set_product)
         self._nullspace = None
         self._pattern = None  # indptr, indices (+ keys, inverse, rows, cols from triplets) of the last assembly
-        self._array_sets = {}  # arrays of the matrices built on arrays, see _array
+        self._arrays = {}  # arrays of the matrices built on arrays, see _array
         self._ksp = self._create_ksp(ksp_type, pc_type, rtol, atol, max_it,
                                      {**_HYPRE_DEFAULTS, **(hypre_options or {})})
 
@@ -435,7 +435,7 @@ class LinearSystem(MatrixAssembly):
                     obj.destroy()
         self._ksp = self._mat = self._nullspace = self._x = self._b = None
         self._pattern = None
-        self._array_sets = {}
+        self._arrays = {}
 
     def __enter__(self) -> "LinearSystem":
         return self

@@ -88,9 +88,9 @@ def pytest_collection_modifyitems(config, items):
     shard = _shard()
     if shard is not None and size == 1:
         k, n = shard
-        modules = {item.module.__name__.rsplit(".", 1)[-1] for item in items}
-        deal = shard_of_modules(modules, n)
-        mine = [deal[item.module.__name__.rsplit(".", 1)[-1]] == k for item in items]
+        names = [item.module.__name__.rsplit(".", 1)[-1] for item in items]
+        deal = shard_of_modules(set(names), n)
+        mine = [deal[name] == k for name in names]
         config.hook.pytest_deselected(items=[it for it, m in zip(items, mine) if not m])
         items[:] = [it for it, m in zip(items, mine) if m]
     for item in items:
