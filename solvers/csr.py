@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["check_block", "sort_neighbours_by_row", "split_diagonal_block", "unit_diagonal",
-           "scale_rows"]
+__all__ = ["check_block", "count_diagonal", "sort_neighbours_by_row", "split_diagonal_block",
+           "split_in_place", "unit_diagonal", "scale_rows"]
 
 
 def sort_neighbours_by_row(indptr, indices, row, inplace=False):
@@ -56,16 +56,27 @@ def check_block(cols, vals):
 
 
 @njit(cache=True)
+def count_diagonal(cols, first, stop):
+    """Entries of a CSR block with their column in ``[first, stop)``: the size of the
+    diagonal part :func:`split_diagonal_block` writes (the rest is the off-diagonal)."""
+    p = 0
+    for k in range(cols.shape[0]):
+        c = cols[k]
+        p += first <= c < stop
+    return p
+
+
+@njit(cache=True)
 def split_diagonal_block(indptr, cols, vals, first, stop, di, dj, dv, oi, oj, ov, pattern):
     """Split the CSR block of a rank's rows into its diagonal part (columns in
     ``[first, stop)``, renumbered from 0) and its off-diagonal part (global columns), as
     ``MatCreateMPIAIJWithSplitArrays`` takes them, writing ``di, oi`` (``n + 1``) and
-    ``dj, dv, oj, ov`` (room for the whole block each), each row's columns in their
-    input order, and a copy of ``cols`` into ``pattern`` (the pattern the caller keeps;
-    PETSc renumbers ``oj`` in place). Returns the diagonal and off-diagonal entry counts
+    ``dj, dv`` and ``oj, ov`` (room for each part: :func:`count_diagonal`), each
+    row's columns in their input order, and a copy of ``cols`` into ``pattern`` (the
+    pattern the caller keeps; PETSc renumbers ``oj`` in place). Returns the diagonal and off-diagonal entry counts
     ``(p, q)``: the blocks are ``(di, dj[:p], dv[:p])`` and ``(oi, oj[:q], ov[:q])``.
 
-    The caller passes arrays it reuses (``LinearSystem`` alternates two sets): pages of
+    The caller passes arrays it reuses (``LinearSystem`` keeps one set): pages of
     fresh arrays are faulted in on every step, which on a VM cost up to 10 us per 4 kB
     page (a fresh 64 MB copy took 155 ms where the same copy into a used buffer took 3 ms).
     """
@@ -87,6 +98,36 @@ def split_diagonal_block(indptr, cols, vals, first, stop, di, dj, dv, oi, oj, ov
                 ov[q] = vals[k]
                 q += 1
         di[i + 1] = p
+        oi[i + 1] = q
+    return p, q
+
+
+@njit(cache=True)
+def split_in_place(indptr, cols, vals, first, stop, oi, oj, ov):
+    """:func:`split_diagonal_block` with the diagonal part written over the block itself:
+    ``indptr`` becomes its row pointers and the front of ``cols`` (renumbered from 0)
+    and ``vals`` its entries (an entry moves only forward: the ``k``-th is read before
+    the ``k``-th slot is written). The off-diagonal part goes to ``oi, oj, ov`` (room
+    for it: :func:`count_diagonal`). Returns the two counts ``(p, q)``."""
+    n = indptr.shape[0] - 1
+    oi[0] = 0
+    p = 0
+    q = 0
+    start = indptr[0]
+    for i in range(n):
+        end = indptr[i + 1]
+        for k in range(start, end):
+            c = cols[k]
+            if first <= c < stop:
+                cols[p] = c - first
+                vals[p] = vals[k]
+                p += 1
+            else:
+                oj[q] = c
+                ov[q] = vals[k]
+                q += 1
+        start = end
+        indptr[i + 1] = p
         oi[i + 1] = q
     return p, q
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from solvers.csr import check_block, split_diagonal_block
+from solvers.csr import check_block, count_diagonal, split_diagonal_block, split_in_place
 from solvers.errors import SolverError, agree
 
 
@@ -180,22 +180,7 @@ class MatrixAssembly:
         indptr = np.asarray(indptr)
         cols = np.asarray(cols)
         values = np.asarray(values, dtype=np.float64)
-        error = None
-        if indptr.shape != (self.n_local + 1,) or cols.shape != values.shape or cols.ndim != 1 \
-                or indptr[0] != 0 or indptr[-1] != cols.size:
-            error = ValueError, (
-                f"{self.prefix}: need indptr of {self.n_local + 1} entries from 0 to len(cols) and "
-                f"cols, values of one length; got {indptr.shape}, {cols.shape}, {values.shape}")
-        else:
-            lo, hi, bad = check_block(cols, values)
-            if cols.size and (lo < 0 or hi >= self.n_global):
-                error = ValueError, (
-                    f"{self.prefix}: columns in {int(lo)}..{int(hi)}, outside the global range "
-                    f"0..{self.n_global - 1}")
-            elif bad:
-                error = SolverError, (
-                    f"{self.prefix}: {bad} matrix values are NaN or infinite; the fields the "
-                    "matrix is built from have blown up: try a smaller time step")
+        error = self._check_csr(indptr, cols, values)
         last = self._pattern
         changed = error is None and (
             last is None or last["indptr"].shape != indptr.shape
@@ -214,6 +199,77 @@ class MatrixAssembly:
             self._mat.assemble()
         self._drop_product()
         self._ksp.setOperators(self._mat)
+
+    def _check_csr(self, indptr, cols, values):
+        """``(exception type, message)`` for a bad CSR block of the owned rows, else None."""
+        if indptr.shape != (self.n_local + 1,) or cols.shape != values.shape or cols.ndim != 1 \
+                or indptr[0] != 0 or indptr[-1] != cols.size:
+            return ValueError, (
+                f"{self.prefix}: need indptr of {self.n_local + 1} entries from 0 to len(cols) and "
+                f"cols, values of one length; got {indptr.shape}, {cols.shape}, {values.shape}")
+        lo, hi, bad = check_block(cols, values)
+        if cols.size and (lo < 0 or hi >= self.n_global):
+            return ValueError, (
+                f"{self.prefix}: columns in {int(lo)}..{int(hi)}, outside the global range "
+                f"0..{self.n_global - 1}")
+        if bad:
+            return SolverError, (
+                f"{self.prefix}: {bad} matrix values are NaN or infinite; the fields the "
+                "matrix is built from have blown up: try a smaller time step")
+        return None
+
+    def set_up_preconditioner_csr(self, indptr, cols, values) -> None:
+        """Collective: set the preconditioner up afresh on a CSR block of this rank's owned
+        rows (as :meth:`assemble_csr` takes it) that serves no other purpose: a BoomerAMG
+        preconditioner of an operator applied otherwise (:class:`solvers.OperatorSystem`).
+
+        The block becomes a PETSc matrix over the caller's arrays and is converted in
+        place to hypre's ParCSR matrix, on which PCHYPRE sets up without a copy of its
+        own. On several ranks the arrays are split in place into the diagonal block
+        (:func:`solvers.csr.split_in_place`): **they are overwritten**. After the call
+        nothing refers to them, and no AIJ copy is kept: the system holds hypre's matrix
+        and its AMG hierarchy only (an AIJ kept beside them cost 12 bytes per entry on
+        one rank and 28 on several, 380 bytes per particle of a 3D coupled tank on one
+        rank; docs/solvers.md). The KSP of this system can only apply its
+        preconditioner (``ksp.getPC().apply``): a hypre matrix provides no vectors to a
+        Krylov method.
+
+        Raises
+        ------
+        ValueError, SolverError
+            On every rank, as :meth:`assemble_csr`.
+        """
+        PETSc = self._PETSc
+        int_type = PETSc.IntType
+        indptr = np.ascontiguousarray(indptr, dtype=int_type)
+        cols = np.ascontiguousarray(cols, dtype=int_type)
+        values = np.ascontiguousarray(values, dtype=np.float64)
+        agree(self.comm, self._check_csr(indptr, cols, values), 0)
+        if self.comm.size > 1:
+            first, stop = self.owned_range
+            n_off = cols.size - count_diagonal(cols, first, stop)
+            oi = np.empty_like(indptr)
+            oj, ov = np.empty(n_off, dtype=int_type), np.empty(n_off)
+            p, _ = split_in_place(indptr, cols, values, first, stop, oi, oj, ov)
+        if self._mat is not None:  # the last matrix and its hierarchy go first
+            self._ksp.reset()
+            self._mat.destroy()
+            self._mat = None
+        sizes = ((self.n_local, self.n_global), (self.n_local, self.n_global))
+        if self.comm.size == 1:
+            mat = PETSc.Mat().createAIJWithArrays(sizes, (indptr, cols, values), comm=self.comm)
+        else:
+            mat = PETSc.Mat().createAIJWithArrays(
+                sizes, ((indptr, cols[:p], values[:p]), (oi, oj, ov)), comm=self.comm)
+        mat.setOptionsPrefix(self.prefix)
+        mat.convert(PETSc.Mat.Type.HYPRE)  # in place (petsc4py converts in place without `out`)
+        self._mat = mat
+        self._pattern = None
+        self._pc_age = 0
+        self._ksp.getPC().setReusePreconditioner(False)
+        self._ksp.setOperators(mat)
+        self._ksp.getPC().setUp()
+        self.n_builds += 1
 
     def _build(self, rows, cols, keys, inverse, data) -> None:
         """Collective: a new matrix preallocated exactly from the CSR block of the owned rows."""
@@ -250,8 +306,14 @@ class MatrixAssembly:
             else:
                 first, stop = self.owned_range
                 di, oi = (self._array(k, indptr.size, indptr.dtype) for k in ("di", "oi"))
-                dj, oj, pattern = (self._array(k, nnz, indices.dtype) for k in ("dj", "oj", "pattern"))
-                dv, ov = (self._array(k, nnz, np.float64) for k in ("dv", "ov"))
+                # each part sized to its count (room for the whole block in both had
+                # cost 12 bytes per entry more)
+                n_diag = count_diagonal(indices, first, stop)
+                dj = self._array("dj", n_diag, indices.dtype)
+                dv = self._array("dv", n_diag, np.float64)
+                oj = self._array("oj", nnz - n_diag, indices.dtype)
+                ov = self._array("ov", nnz - n_diag, np.float64)
+                pattern = self._array("pattern", nnz, indices.dtype)
                 p, q = split_diagonal_block(indptr, indices, data, first, stop,
                                             di, dj, dv, oi, oj, ov, pattern)
                 csr = ((di, dj[:p], dv[:p]), (oi, oj[:q], ov[:q]))

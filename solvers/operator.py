@@ -122,8 +122,7 @@ class OperatorSystem(LinearSystem):
     def assemble_preconditioner(self, indptr, cols, values) -> None:
         """Collective: the scalar matrix (one row per point, global point columns; see
         :meth:`solvers.LinearSystem.assemble_csr`) BoomerAMG is set up on, afresh."""
-        self.scalar.assemble_csr(indptr, cols, values)
-        self.scalar.ksp.getPC().setUp()
+        self.scalar.set_up_preconditioner_csr(indptr, cols, values)
 
     def resize(self, n_local_rows: int) -> None:
         """Collective: the same system over a new number of rows (see

@@ -410,6 +410,61 @@ def _residual(comm, block, x, b):
     return np.sqrt(r2 / comm.allreduce(float((b ** 2).sum())))
 
 
+def test_preconditioner_set_up_on_hypre_matrix_keeps_no_copy(comm):
+    """set_up_preconditioner_csr: BoomerAMG set up on the block converted in place to a
+    hypre matrix applies exactly as the one PCHYPRE sets up on an AIJ copy; the system
+    keeps no AIJ (its matrix is hypre's), nothing refers to the caller's arrays (on
+    several ranks they were split in place), and the next set-up replaces the last."""
+    n = 30
+    with LinearSystem(comm, "hyp_", block_rows(comm, n * n), ksp_type="preonly") as system, \
+            LinearSystem(comm, "aij_", block_rows(comm, n * n), ksp_type="preonly") as ref:
+        first, stop = system.owned_range
+        for k in range(2):
+            indptr, cols, vals, block = _poisson_csr(n, first, stop, shift=0.5 * k,
+                                                     extra=k == 1)
+            ref.assemble_csr(indptr, cols, vals)
+            ref.ksp.getPC().setUp()
+            given = [np.array(a, copy=True) for a in (indptr, cols, vals)]
+            arrays = [np.ascontiguousarray(a, dtype=t) for a, t in
+                      ((indptr, system.index_dtype), (cols, system.index_dtype), (vals, float))]
+            system.set_up_preconditioner_csr(*arrays)
+            assert system._mat.getType() == "hypre" and system.n_builds == k + 1
+            assert system._arrays == {} and system._pattern is None
+            if comm.size > 1:  # the block was split in place: the caller's copy is spent
+                assert not all(np.array_equal(a, g) for a, g in zip(arrays, given))
+            del arrays  # PETSc refers to none of them: freeing them is safe
+            b = ref._b.duplicate()
+            b.setArray(rhs_of(n * n)[first:stop])
+            x, y = b.duplicate(), b.duplicate()
+            system.ksp.getPC().apply(b, x)
+            ref.ksp.getPC().apply(b, y)
+            assert np.abs(x.getArray()).max() > 0.0
+            assert np.array_equal(x.getArray(), y.getArray())
+
+
+def test_split_in_place_is_the_split_of_a_copy():
+    """split_in_place writes the diagonal block over the CSR block it reads, with the
+    same parts as split_diagonal_block writes to separate arrays."""
+    from solvers.csr import count_diagonal, split_diagonal_block, split_in_place
+
+    n, first, stop = 12, 40, 100
+    indptr, cols, vals, _ = _poisson_csr(n, first, stop, extra=True)
+    indptr, cols = indptr.astype(np.int32), cols.astype(np.int32)
+    nnz = cols.size
+    p_diag = count_diagonal(cols, first, stop)
+    assert 0 < p_diag < nnz
+    ref = [np.zeros(stop - first + 1, np.int32), np.zeros(nnz, np.int32), np.zeros(nnz),
+           np.zeros(stop - first + 1, np.int32), np.zeros(nnz, np.int32), np.zeros(nnz)]
+    p, q = split_diagonal_block(indptr, cols, vals, first, stop, *ref, np.zeros(nnz, np.int32))
+    assert (p, q) == (p_diag, nnz - p_diag)
+    ip, c, v = indptr.copy(), cols.copy(), vals.copy()
+    oi, oj, ov = np.zeros_like(ip), np.zeros(q, np.int32), np.zeros(q)
+    assert split_in_place(ip, c, v, first, stop, oi, oj, ov) == (p, q)
+    assert np.array_equal(ip, ref[0]) and np.array_equal(c[:p], ref[1][:p])
+    assert np.array_equal(v[:p], ref[2][:p]) and np.array_equal(oi, ref[3])
+    assert np.array_equal(oj, ref[4][:q]) and np.array_equal(ov, ref[5][:q])
+
+
 def test_lagged_preconditioner_serves_k_solves_over_the_same_unknowns(comm):
     """reuse_preconditioner = 3: one AMG set-up per three matrices of the same unknowns,
     new patterns included; every solve still meets its tolerance. Different unknowns

@@ -135,6 +135,8 @@ def test_the_ppe_sees_the_solid_velocity_after_the_pressure():
     nptr, ncols, nvals = np.zeros(n + 1, np.int64), np.empty(nnz, np.int64), np.empty(nnz)
     k = pressure.add_near_response(x, m, rho, rho0, fluid, free, scale, row, inv, a_self, indptr,
                                    indices, h, 2, d, 0, ptr, cols, vals, nptr, ncols, nvals)
+    # the near block is sized by its own count (the touched rows' entries), not the PPE's
+    assert 0 < k == pressure.near_capacity(fluid, free, scale, row, indptr, indices, 0, ptr) < nnz
     P = _dense(ptr, cols, vals, n, n)
     N = _dense(nptr, ncols[:k], nvals[:k], n, n)
     bp, bc, left, right = pressure.response_blocks(x, m, rho, rho0, fluid, free, scale, row, inv,

@@ -29,13 +29,13 @@ import time
 import numpy as np
 
 from decomposition.reduce import global_max, global_reduce, global_sum
-from parsph.coupling.view import SolidView
+from parsph.coupling.view import VIEW_FIELDS, SolidView
 from parsph.scene.materials import PHASE_FLUID, PHASE_SOLID
 
 #: Fields the TLSPH step changes on solid rows (copied back to the main set each step).
 #: (``rho0`` and ``rho`` of solid rows in the main set are what the fluid sees; the
 #: solid's own rest density lives in the view.)
-SOLID_STATE = ("x", "v", "F", "tau", "eps_e", "P", "L", "Q", "lapv", "p_c", "modulus",
+SOLID_STATE = ("x", "v", "F", "tau", "eps_e", "P", "lapv", "p_c", "modulus",
                "solid_init", "eps_p", "p", "porosity")
 
 #: stats.csv columns of the coupling; ``fsi_force_*`` (N, N/m in 2D) is the net force of
@@ -55,6 +55,8 @@ class Coupled:
         from parsph.solid.stage import TLSPH
 
         self.solid = TLSPH(ctx)  # adds the solid fields to the main set
+        for name in VIEW_FIELDS:  # but these live in the solid's view only
+            ctx.particles.data.pop(name, None)
         self.fluid = IISPH(ctx)  # adds the fluid fields
         ctx.particles.add_field("fluidised", dtype=np.uint8)
         ctx.particles.add_field("ref_count0", dtype=np.int32)  # initial reference neighbours

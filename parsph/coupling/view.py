@@ -21,6 +21,13 @@ from parsph.core.particles import ParticleSet
 from parsph.core.context import Context
 
 
+#: TLSPH work fields kept in the view only, not in the main set: the kernel-gradient
+#: correction matrices of eqs. (13)-(14), rebuilt with the view, and the stress term of
+#: eq. (13) each step recomputes. In the
+#: main set they would cost 144 bytes per particle of every phase (docs/coupling.md).
+VIEW_FIELDS = {"L": (3, 3), "Q": (3, 3)}
+
+
 @dataclass
 class SolidContext(Context):
     """The context TLSPH sees in a coupled scene; walls are looked up in ``main``."""
@@ -68,7 +75,9 @@ class SolidView:
         n = p.n_owned
         self.main = ctx
         rows = np.flatnonzero(p["phase"][:n] == PHASE_SOLID)
-        sp = ParticleSet(ctx.dim, {k: a[:n][rows] for k, a in p.data.items()})
+        fields = {k: a[:n][rows] for k, a in p.data.items()}
+        fields.update({k: np.zeros((rows.size,) + shape) for k, shape in VIEW_FIELDS.items()})
+        sp = ParticleSet(ctx.dim, fields)
         halo = Halo.build(ctx.comm, ctx.rcb_ref, sp["X"][: sp.n_owned], ctx.radius, ctx.box)
         sp.set_halo(halo.exchange(sp.owned_fields(), shift_fields=("x", "X")))
         indptr, indices = build_csr(sp["X"], sp.n_owned, ctx.radius)

@@ -206,6 +206,31 @@ def response_blocks(x, m, rho, rho0, fluid, free, solid, row, inv_mass, indptr, 
 
 
 @njit(cache=True)
+def near_capacity(fluid, free, solid, row, indptr, indices, first, ptr):
+    """Entries :func:`add_near_response` writes to its ``near_*`` block: the whole PPE
+    row (``ptr``: rows in global order from ``first``) of each row it touches, i.e. an
+    interior fluid row with a type-II solid neighbour that has a row, or a type-II row.
+    The block is sized by this count, not by the PPE's: most rows touch no solid (in a
+    tank whose soil is not yet wet, none)."""
+    n = indptr.shape[0] - 1
+    total = 0
+    for i in range(n):
+        if row[i] < 0 or free[i]:
+            continue
+        touched = (not fluid[i]) and solid[i] > 0.0
+        if fluid[i]:
+            for q in range(indptr[i], indptr[i + 1]):
+                s = indices[q]
+                if not fluid[s] and solid[s] > 0.0 and row[s] >= 0:
+                    touched = True
+                    break
+        if touched:
+            rr = row[i] - first
+            total += ptr[rr + 1] - ptr[rr]
+    return total
+
+
+@njit(cache=True)
 def add_near_response(x, m, rho, rho0, fluid, free, solid, row, inv_mass, a_self, indptr,
                       indices, h, dim, d, first, ptr, cols, vals, near_ptr, near_cols,
                       near_vals):

@@ -460,7 +460,8 @@ class IISPH:
             x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt, alpha, d,
             self.num.ppe_laplacian == "corrected", expansion, ppe.offset, ptr, cols, vals)
         if coupled:  # the solid-response term (strong coupling, docs/coupling.md)
-            near = self._csr_buffers(ppe, nnz, key="near")
+            near = self._csr_buffers(ppe, response.near_capacity(
+                fluid, free, solid, row, indptr, indices, ppe.offset, ptr), key="near")
             n_near = response.add_near_response(
                 x, m, rho, rho0, fluid, free, solid, row, p["inv_mass"], p["a_self"], indptr,
                 indices, h, dim, d, ppe.offset, ptr, cols, vals, *near)
