@@ -148,6 +148,7 @@ def worker(args):
         setattr(cls, name, wrapper)
 
     measured(system.LinearSystem, "assemble_csr", "matrix")
+    measured(system.LinearSystem, "assemble_csr_over", "matrix")  # the PPE, no copy
     measured(system.LinearSystem, "solve", "solve")
     # the matrix-free viscous system: its scalar matrix with the AMG set-up on it
     measured(operator.OperatorSystem, "assemble_preconditioner", "matrix")

@@ -240,36 +240,76 @@ class MatrixAssembly:
             On every rank, as :meth:`assemble_csr`.
         """
         PETSc = self._PETSc
-        int_type = PETSc.IntType
-        indptr = np.ascontiguousarray(indptr, dtype=int_type)
-        cols = np.ascontiguousarray(cols, dtype=int_type)
-        values = np.ascontiguousarray(values, dtype=np.float64)
-        agree(self.comm, self._check_csr(indptr, cols, values), 0)
-        if self.comm.size > 1:
-            first, stop = self.owned_range
-            n_off = cols.size - count_diagonal(cols, first, stop)
-            oi = np.empty_like(indptr)
-            oj, ov = np.empty(n_off, dtype=int_type), np.empty(n_off)
-            p, _ = split_in_place(indptr, cols, values, first, stop, oi, oj, ov)
+        arrays = self._csr_arrays(indptr, cols, values)
+        agree(self.comm, self._check_csr(*arrays), 0)
         if self._mat is not None:  # the last matrix and its hierarchy go first
             self._ksp.reset()
             self._mat.destroy()
             self._mat = None
-        sizes = ((self.n_local, self.n_global), (self.n_local, self.n_global))
-        if self.comm.size == 1:
-            mat = PETSc.Mat().createAIJWithArrays(sizes, (indptr, cols, values), comm=self.comm)
-        else:
-            mat = PETSc.Mat().createAIJWithArrays(
-                sizes, ((indptr, cols[:p], values[:p]), (oi, oj, ov)), comm=self.comm)
+        mat = self._aij_over(*arrays)
         mat.setOptionsPrefix(self.prefix)
         mat.convert(PETSc.Mat.Type.HYPRE)  # in place (petsc4py converts in place without `out`)
         self._mat = mat
         self._pattern = None
+        self._held = None
         self._pc_age = 0
         self._ksp.getPC().setReusePreconditioner(False)
         self._ksp.setOperators(mat)
         self._ksp.getPC().setUp()
         self.n_builds += 1
+
+    def assemble_csr_over(self, indptr, cols, values, same_unknowns: bool = False) -> None:
+        """Collective: :meth:`assemble_csr` with the matrix built over the caller's arrays.
+
+        PETSc takes the arrays as the matrix's storage (on several ranks after a split in
+        place into the diagonal block, :func:`solvers.csr.split_in_place`: **they are
+        overwritten**), so the system keeps no copy of its own. The caller must leave
+        them untouched until the solves on this matrix are done, and assemble again
+        before the next solve once it has written to them; the system keeps them alive
+        meanwhile. Every call builds a new matrix (no pattern is kept to compare with).
+        A lagged preconditioner set-up (``reuse_preconditioner``, ``same_unknowns``)
+        holds hypre's copy of an earlier matrix and reads none of these arrays.
+
+        The PPE's CSR block and the viscous preconditioner's share one caller buffer
+        this way (``parsph/fluid/stage.py``): a copy per system had cost 12 bytes per
+        entry on one rank and 28 on several (docs/solvers.md).
+
+        Raises
+        ------
+        ValueError, SolverError
+            On every rank, as :meth:`assemble_csr`.
+        """
+        arrays = self._csr_arrays(indptr, cols, values)
+        bits = agree(self.comm, self._check_csr(*arrays), 0 if same_unknowns else 2)
+        self._lag(not bits & 2)
+        self._finish_build(self._aij_over(*arrays))
+        self._held = arrays
+        self._pattern = None
+        self._drop_product()
+        self._ksp.setOperators(self._mat)
+
+    def _csr_arrays(self, indptr, cols, values):
+        """The CSR block as PETSc takes it (the caller's arrays where their types fit)."""
+        int_type = self._PETSc.IntType
+        return (np.ascontiguousarray(indptr, dtype=int_type),
+                np.ascontiguousarray(cols, dtype=int_type),
+                np.ascontiguousarray(values, dtype=np.float64))
+
+    def _aij_over(self, indptr, cols, values):
+        """Collective: an AIJ matrix over a checked CSR block of the owned rows (PETSc's
+        index type), split in place on several ranks (see :meth:`assemble_csr_over`)."""
+        PETSc = self._PETSc
+        sizes = ((self.n_local, self.n_global), (self.n_local, self.n_global))
+        if self.comm.size == 1:
+            return PETSc.Mat().createAIJWithArrays(sizes, (indptr, cols, values),
+                                                   comm=self.comm)
+        first, stop = self.owned_range
+        n_off = cols.size - count_diagonal(cols, first, stop)
+        oi = np.empty_like(indptr)
+        oj, ov = np.empty(n_off, dtype=indptr.dtype), np.empty(n_off)
+        p, _ = split_in_place(indptr, cols, values, first, stop, oi, oj, ov)
+        return PETSc.Mat().createAIJWithArrays(
+            sizes, ((indptr, cols[:p], values[:p]), (oi, oj, ov)), comm=self.comm)
 
     def _build(self, rows, cols, keys, inverse, data) -> None:
         """Collective: a new matrix preallocated exactly from the CSR block of the owned rows."""
@@ -319,7 +359,6 @@ class MatrixAssembly:
                 csr = ((di, dj[:p], dv[:p]), (oi, oj[:q], ov[:q]))
                 indptr, indices = indptr.copy(), pattern
             mat = PETSc.Mat().createAIJWithArrays(sizes, csr, comm=self.comm)
-            mat.setOptionsPrefix(self.prefix)
         else:  # keeps the block size (BoomerAMG's number of functions)
             if not fresh:
                 indptr, indices = indptr.copy(), indices.copy()
@@ -328,6 +367,15 @@ class MatrixAssembly:
             mat.setType(PETSc.Mat.Type.AIJ)
             mat.setOptionsPrefix(self.prefix)
             mat.setPreallocationCSR((indptr, indices, data))  # inserts the values and assembles
+        self._finish_build(mat)
+        self._held = None
+        self._pattern = dict(indptr=indptr, indices=indices)
+
+    def _finish_build(self, mat) -> None:
+        """Collective: options of a new matrix; it replaces the last one (whose
+        preconditioner set-up goes too unless it is lagged)."""
+        PETSc = self._PETSc
+        mat.setOptionsPrefix(self.prefix)
         mat.setOption(PETSc.Mat.Option.NEW_NONZERO_ALLOCATION_ERR, True)
         mat.setOption(PETSc.Mat.Option.NO_OFF_PROC_ENTRIES, True)
         if self.symmetric:
@@ -341,7 +389,6 @@ class MatrixAssembly:
                 self._ksp.reset()  # frees the preconditioner built on the old pattern
             self._mat.destroy()
         self._mat = mat
-        self._pattern = dict(indptr=indptr, indices=indices)
         self.n_builds += 1
 
     def _array(self, name: str, size: int, dtype) -> np.ndarray:

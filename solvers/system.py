@@ -180,6 +180,7 @@ class LinearSystem(MatrixAssembly):
         self._nullspace = None
         self._pattern = None  # indptr, indices (+ keys, inverse, rows, cols from triplets) of the last assembly
         self._arrays = {}  # arrays of the matrices built on arrays, see _array
+        self._held = None  # the caller's arrays a matrix is built over (assemble_csr_over)
         self._ksp = self._create_ksp(ksp_type, pc_type, rtol, atol, max_it,
                                      {**_HYPRE_DEFAULTS, **(hypre_options or {})})
 
@@ -241,6 +242,7 @@ class LinearSystem(MatrixAssembly):
             self._mat.destroy()
             self._mat = None
         self._pattern = None
+        self._held = None
         self._pc_age = 0
         self._set_sizes(n_local_rows)
         self._create_vectors()
@@ -436,6 +438,7 @@ class LinearSystem(MatrixAssembly):
         self._ksp = self._mat = self._nullspace = self._x = self._b = None
         self._pattern = None
         self._arrays = {}
+        self._held = None
 
     def __enter__(self) -> "LinearSystem":
         return self

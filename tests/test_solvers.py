@@ -465,6 +465,40 @@ def test_split_in_place_is_the_split_of_a_copy():
     assert np.array_equal(oj, ref[4][:q]) and np.array_equal(ov, ref[5][:q])
 
 
+def test_assemble_csr_over_solves_from_one_reused_buffer(comm):
+    """assemble_csr_over builds each matrix over the caller's buffer (split in place on
+    several ranks), which the caller writes again for the next matrix: every solve
+    meets its tolerance, a lagged set-up serves the next matrices as with
+    assemble_csr (it reads none of the rewritten arrays), and the system keeps no
+    arrays of its own."""
+    n = 40
+    total = n * n
+    with LinearSystem(comm, "over_", block_rows(comm, total), rtol=1e-10,
+                      reuse_preconditioner=3) as system:
+        first, stop = system.owned_range
+        b = rhs_of(total)[first:stop]
+        blocks = [_poisson_csr(n, first, stop, shift=0.01 * k, extra=k % 2 == 1)
+                  for k in range(5)]
+        capacity = max(blk[1].size for blk in blocks)
+        ptr = np.zeros(stop - first + 1, dtype=system.index_dtype)
+        cols = np.empty(capacity, dtype=system.index_dtype)
+        vals = np.empty(capacity)
+        fresh = []
+        for indptr, c, v, block in blocks:
+            ptr[:] = indptr
+            cols[:c.size] = c
+            vals[:c.size] = v
+            system.assemble_csr_over(ptr, cols[:c.size], vals[:c.size], same_unknowns=True)
+            assert system._arrays == {} and system._pattern is None
+            assert np.shares_memory(system._held[1], cols)
+            x, info = system.solve(b)
+            fresh.append(info["fresh_setup"])
+            assert _residual(comm, block, x, b) < 1e-8
+            vals[:] = np.nan  # the caller's next use of its buffer
+        assert fresh == [True, False, False, True, False]
+        assert system.n_setups == 2 and system.n_builds == 5
+
+
 def test_lagged_preconditioner_serves_k_solves_over_the_same_unknowns(comm):
     """reuse_preconditioner = 3: one AMG set-up per three matrices of the same unknowns,
     new patterns included; every solve still meets its tolerance. Different unknowns

@@ -471,8 +471,10 @@ class IISPH:
         # diagonal of 1e-9 one step and 1e-7 the next, and a lagged set-up then took 60
         # iterations where a fresh one took 9 (with the scaling: 11; docs/solvers.md)
         scale = unit_diagonal(ptr, cols[:nnz], vals[:nnz], ppe.offset)
-        ppe.assemble_csr(ptr, cols[:nnz], vals[:nnz],
-                         same_unknowns=self._same_ppe_rows(p["id"][:n][order]))
+        # over the shared buffer (no copy): the viscous system writes it again only after
+        # this step's PPE solve, and the next step assembles the PPE anew
+        ppe.assemble_csr_over(ptr, cols[:nnz], vals[:nnz],
+                              same_unknowns=self._same_ppe_rows(p["id"][:n][order]))
         if coupled:
             scale_rows(near[0], near[2][:n_near], scale)
             ppe.set_product(*blocks, near=(near[0], near[1][:n_near], near[2][:n_near]),
