@@ -281,9 +281,13 @@ def test_phase_change_at_a_rank_boundary(comm, mpi_tmp_path):
     (stage,) = stages
     view = stage.view
     sp = view.ctx.particles
-    # the TLSPH work fields live in the view only (its halo rows too), not the main set
+    # the TLSPH work fields live in the view only (its halo rows too), not the main set,
+    # and the fluid's and the coupling's fields in the main set only
+    from parsph.coupling.stage import MAIN_ONLY
+
     assert "L" not in ctx.particles and "Q" not in ctx.particles
     assert sp["L"].shape == sp["Q"].shape == (sp.n_total, 3, 3)
+    assert all(k in ctx.particles and k not in sp for k in MAIN_ONLY)
     me, other = comm.rank, 1 - comm.rank
     # owned solids that the other rank holds in its reference halo and whose owner by
     # current position (the fluid partition) is the other rank

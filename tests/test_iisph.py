@@ -237,7 +237,7 @@ def test_matrix_free_viscous_operator_is_the_assembled_matrix(dim, morris):
     coef = np.full(indices.size, np.nan)
     kind = np.full(n, 3, dtype=np.int8)
     S, rhs_s = dense_system(viscous.viscous_pairs, *args, morris, n_points=n_rows,
-                            tail=(coef, kind),
+                            tail=(coef, kind, np.inf),
                             capacity=assembly.csr_capacity(fluid, solid, rowv, indptr, 1, False))
     np.testing.assert_array_equal(rhs_s, rhs)
     order = np.argsort(np.where(row >= 0, row, n))[:n_rows]
@@ -253,6 +253,30 @@ def test_matrix_free_viscous_operator_is_the_assembled_matrix(dim, morris):
         for b in range(n_rows):
             block = A[a * dim:(a + 1) * dim, b * dim:(b + 1) * dim]
             assert S[a, b] == pytest.approx(np.trace(block) / dim, rel=1e-12, abs=1e-15)
+    # a shorter reach: the same operator (every pair's coefficient), a sparser scalar
+    # matrix. A moving row keeps its pairs closer than the reach, as they were, and
+    # drops the others with their share of the diagonal: its row sum stays 1.
+    d = 0.1  # the set's particle size
+    coef_r = np.full(indices.size, np.nan)
+    kind_r = np.full(n, 3, dtype=np.int8)
+    S_r, rhs_r = dense_system(viscous.viscous_pairs, *args, morris, n_points=n_rows,
+                              tail=(coef_r, kind_r, 1.5 * d),
+                              capacity=assembly.csr_capacity(fluid, solid, rowv, indptr, 1,
+                                                             False))
+    np.testing.assert_array_equal(coef_r, coef)
+    np.testing.assert_array_equal(kind_r, kind)
+    np.testing.assert_array_equal(rhs_r, rhs)
+    point = order  # the particle of each row
+    dist = np.linalg.norm(x[point][:, None, :] - x[point][None, :, :], axis=-1)
+    moving = np.isin(kind[point], (0, 1))
+    off = ~np.eye(n_rows, dtype=bool)
+    near = dist < 1.5 * d
+    assert np.count_nonzero(S_r[off]) < np.count_nonzero(S[off])  # some pairs left out
+    assert np.all(S_r[moving][near[moving] & off[moving]] == S[moving][near[moving] & off[moving]])
+    assert np.all(S_r[moving][~near[moving] & off[moving]] == 0.0)
+    assert np.allclose(S_r[moving].sum(axis=1), 1.0, rtol=0, atol=1e-12)
+    assert np.allclose(S[moving].sum(axis=1), 1.0, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(S_r[~moving], S[~moving])  # wall and identity rows
 
 
 @pytest.mark.parametrize("morris", [False, True], ids=["eq34", "morris"])

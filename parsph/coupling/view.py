@@ -60,7 +60,8 @@ class SolidContext(Context):
 
 
 class SolidView:
-    """Owned solid rows of ``ctx`` (the main context) with their reference halo.
+    """Owned solid rows of ``ctx`` (the main context) with their reference halo; the
+    fields named in ``main_only`` stay in the main set.
 
     Attributes
     ----------
@@ -70,12 +71,14 @@ class SolidView:
         Main-set row of each owned solid row (valid after :meth:`locate`).
     """
 
-    def __init__(self, ctx):
+    def __init__(self, ctx, main_only=()):
         p = ctx.particles
         n = p.n_owned
         self.main = ctx
         rows = np.flatnonzero(p["phase"][:n] == PHASE_SOLID)
-        fields = {k: a[:n][rows] for k, a in p.data.items()}
+        # every field of the main set but ``main_only`` (the fluid's and the coupling's,
+        # which TLSPH never reads), and the view's own
+        fields = {k: a[:n][rows] for k, a in p.data.items() if k not in main_only}
         fields.update({k: np.zeros((rows.size,) + shape) for k, shape in VIEW_FIELDS.items()})
         sp = ParticleSet(ctx.dim, fields)
         halo = Halo.build(ctx.comm, ctx.rcb_ref, sp["X"][: sp.n_owned], ctx.radius, ctx.box)

@@ -330,7 +330,9 @@ class IISPH:
         x = p["x"]
         nnz, rhs = viscous.viscous_pairs(
             x, p["v"], m, p["rho"], p["nu"], fluid, solid, p["wall_slip"], row,
-            indptr, indices, h, dim, dt, g, morris, first, ptr, cols, vals, coef, kind)
+            indptr, indices, h, dim, dt, g, morris, first, ptr, cols, vals, coef, kind,
+            self.num.viscous_preconditioner_reach * ctx.d
+            if self.num.viscous_preconditioner_reach > 0.0 else np.inf)
         visc.assemble_preconditioner(ptr, cols[:nnz], vals[:nnz])
         # where each local particle's unknowns sit in the operator's input: the owned rows
         # in row order, then the points of other ranks (halo particles in a row)

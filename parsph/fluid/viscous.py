@@ -92,12 +92,15 @@ def _viscous_pair(m, rho, nu, fluid, i, j, r2, k, dim, dt, eta2, morris):
 
 @njit(cache=True)
 def viscous_pairs(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, dim, dt,
-                  g, morris, first, out_ptr, out_cols, out_vals, coef, kind):
+                  g, morris, first, out_ptr, out_cols, out_vals, coef, kind, reach):
     """The matrix-free form of :func:`viscous_csr`: the scalar preconditioner matrix (one
     row per point), each pair's coefficient in ``coef`` and each row's form in ``kind``
-    (see there) for :func:`viscous_apply`. Returns ``(nnz, rhs)``."""
+    (see there) for :func:`viscous_apply`. The preconditioner's moving rows keep the
+    pairs closer than ``reach`` (m; ``inf``: all), see :func:`_viscous_rows`. Returns
+    ``(nnz, rhs)``."""
     return _viscous_rows(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, dim,
-                         dt, g, morris, first, out_ptr, out_cols, out_vals, True, coef, kind)
+                         dt, g, morris, first, out_ptr, out_cols, out_vals, True, coef, kind,
+                         reach * reach)
 
 
 @njit(cache=True)
@@ -107,12 +110,12 @@ def viscous_csr(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, d
     :func:`_viscous_rows`. Returns ``(nnz, rhs)``."""
     return _viscous_rows(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, dim,
                          dt, g, morris, first, out_ptr, out_cols, out_vals, False,
-                         np.empty(0), np.empty(0, dtype=np.int8))
+                         np.empty(0), np.empty(0, dtype=np.int8), np.inf)
 
 
 @njit(cache=True)
 def _viscous_rows(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, dim, dt,
-                  g, morris, first, out_ptr, out_cols, out_vals, scalar, coef, kind):
+                  g, morris, first, out_ptr, out_cols, out_vals, scalar, coef, kind, reach2):
     """CSR block and right-hand side of the implicit viscous predictor (30)/(34).
 
     Writes the owned scalar rows (block size ``dim``: component ``a`` of global point
@@ -144,7 +147,11 @@ def _viscous_rows(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h,
     component); ``coef`` (one per neighbour pair, as ``indices``) receives each pair's
     coefficient (``c``; ``W_wf / sum W`` of a no-slip wall row; 0 for a pair left out) and
     ``kind`` (one per owned particle) the row's form: 0 the blocks ``c r r^T`` of eq.
-    (34), 1 Morris's ``c I``, 2 a no-slip ghost row, 3 an identity row.
+    (34), 1 Morris's ``c I``, 2 a no-slip ghost row, 3 an identity row. A scalar moving
+    row leaves out the pairs at ``r^2 >= reach2`` with their share of its diagonal (the
+    row sum stays 1, as the operator's): a sparser matrix for BoomerAMG, while ``coef``
+    keeps every pair, so the operator the Krylov method solves is unchanged
+    (docs/solvers.md).
     """
     n = indptr.shape[0] - 1
     rhs = np.zeros((n, dim))
@@ -196,10 +203,15 @@ def _viscous_rows(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h,
                         continue
                 elif not fluid[j]:
                     continue
+                d0, d1, d2, r2 = delta(x, i, j, dim)
+                if moving and scalar and r2 >= reach2:  # the operator's, not the matrix's
+                    if pairs:
+                        coef[p] = _viscous_pair(m, rho, nu, fluid, i, j, r2, kc, dim, dt,
+                                                eta2, morris) * (1.0 if fluid[i] else solid[i])
+                    continue
                 if dslot < 0 and rj >= ri:
                     dslot, t, last = _slot(out_cols, out_vals, base, span, bw, nd, t, last, ri)
                 s, t, last = _slot(out_cols, out_vals, base, span, bw, nd, t, last, rj)
-                d0, d1, d2, r2 = delta(x, i, j, dim)
                 if ghost:
                     wij = w_k(math.sqrt(r2), kc) / wsum
                     if pairs:
