@@ -10,11 +10,11 @@ from parsph.scene.geometry import estimate_count
 BASE_BYTES = {2: 100 + 4 * 24 + 40, 3: 120 + 4 * 70 + 40}
 #: Extra bytes per particle of each stage (its fields and, for implicit stages, matrices).
 #: iisph: its fields, both systems' scalar matrices with their hypre copies and AMG
-#: hierarchies, the viscous pairs' coefficients: a 3D coupled tank of 1.1e5 particles
-#: rose by 4.9 kB per particle in all (jobs/bench_memory.py, docs/performance.md), of
-#: which 3.3 kB is this stage's (coupled: with tlsph's 1.2 kB); 2D (~24 neighbours against ~57) is taken at the same
-#: figure, an upper bound.
-STAGE_BYTES = {"kinematics": 0, "density": 8, "iisph": 3300, "tlsph": 1200, "coupled": 4500}
+#: hierarchies, the viscous pairs' coefficients. coupled: the same with the solid's view
+#: and TLSPH's pairs: a 3D coupled tank of 1.0e6 particles on 2 ranks rose by 3.73 kB per
+#: particle in all (jobs/bench_memory.py, docs/performance.md), 3.56 kB at 1.1e5 on one
+#: rank. 2D (~24 neighbours against ~57) is taken at the same figures, an upper bound.
+STAGE_BYTES = {"kinematics": 0, "density": 8, "iisph": 3300, "tlsph": 1200, "coupled": 3400}
 #: More bytes per particle with ``fluid.viscous_operator = "assembled"`` (the dim x dim
 #: blocks held as CSR work arrays, PETSc's AIJ and hypre's copy with its hierarchy: the
 #: same 3D tank rose by 14.2 kB per particle).
