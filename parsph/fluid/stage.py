@@ -20,8 +20,7 @@ neighbour lists within 2h of the current positions, owned rows first, halo after
 5. an explicit step (``fluid.viscous_solver = "auto"`` and a viscous number below
    ``fluid.explicit_viscous_number``): the same operator applied to the present velocity,
    then the PPE and the corrector;
-6. positions :math:`\mathbf{x} \mathrel{+}= \Delta t \mathbf{v}^{\beta+1}`
-   (symplectic Euler).
+6. positions :math:`\mathbf{x} \mathrel{+}= \Delta t \mathbf{v}^{\beta+1}` (symplectic Euler).
 
 The time step is eq. (49) with :math:`C^f_{CFL}` = ``fluid.cfl`` and no viscous limit.
 """
@@ -42,16 +41,15 @@ from parsph.fluid.walls import wall_slip
 from parsph.scene.materials import PHASE_FLUID, PHASE_WALL
 from solvers.csr import scale_rows, sort_neighbours_by_row, unit_diagonal
 
-#: BoomerAMG defaults of the PPE beyond the smoother every system gets
-#: (``solvers.system._HYPRE_DEFAULTS``); ``-ppe_pc_hypre_boomeramg_agg_nl 0`` undoes it.
-#: The viscous system keeps plain coarsening: its Bingham viscosity varies by orders of
-#: magnitude, and the slope_failure demo's viscous solves gained nothing measurable.
+#: BoomerAMG defaults of the PPE beyond every system's smoother (``-ppe_pc_hypre_boomeramg_
+#: agg_nl 0`` undoes it). The viscous system keeps plain coarsening: its Bingham viscosity
+#: varies by orders of magnitude; the slope_failure demo's viscous solves gained nothing.
 PPE_HYPRE_OPTIONS = {"pc_hypre_boomeramg_agg_nl": "1"}
 
 STATS = ("viscous_number", "visc_iterations", "visc_residual", "ppe_iterations", "ppe_residual",
-         "ppe_setup",
-         "n_free_surface", "fluid_contacts", "max_divergence", "density_work", "wall_s_fluid_assembly",
-         "wall_s_fluid_solve", "wall_s_visc_solve", "wall_s_ppe_solve", "wall_s_fluid_halo")
+         "ppe_setup", "n_free_surface", "fluid_contacts", "max_divergence", "density_work",
+         "wall_s_fluid_assembly", "wall_s_fluid_solve", "wall_s_visc_solve", "wall_s_ppe_solve",
+         "wall_s_fluid_halo")
 
 
 def lattice_density_ratio(h_over_d: float, dim: int) -> float:
@@ -104,10 +102,9 @@ class IISPH:
     Parallel: each rank assembles the rows of its owned particles (fluid and walls) with
     global column indices taken from ``fluid_row`` of owned and halo rows, which is
     refreshed with one halo exchange per step; fields a kernel reads on halo rows (``rho``,
-    ``nu``, ``v_star``, ``p``) are refreshed after they change. The two
-    :class:`solvers.LinearSystem` objects are kept while no rank's owned count changes
-    (then their matrices are reused when the sparsity pattern is unchanged) and rebuilt
-    on every rank otherwise.
+    ``nu``, ``v_star``, ``p``) are refreshed after they change. The two systems are kept
+    while no rank's owned count changes and rebuilt on every rank otherwise; both build
+    their matrices over one CSR buffer (docs/solvers.md).
     """
 
     name = "iisph"
@@ -216,7 +213,7 @@ class IISPH:
         with room for ``capacity`` entries, kept from step to step (fresh arrays of this
         size would be allocated and page-faulted anew every step); grown by a quarter
         when too small. ``cols`` has PETSc's index type. ``key`` names the set; the PPE
-        and the viscous system share the default one (each copies its block)."""
+        and the viscous preconditioner share the default one, as their matrices' storage."""
         key = key or "csr"
         ptr, cols, vals = self._buffers.get(key, (None, None, None))
         if ptr is None or ptr.size != system.n_local + 1:
@@ -331,8 +328,7 @@ class IISPH:
         nnz, rhs = viscous.viscous_pairs(
             x, p["v"], m, p["rho"], p["nu"], fluid, solid, p["wall_slip"], row,
             indptr, indices, h, dim, dt, g, morris, first, ptr, cols, vals, coef, kind,
-            self.num.viscous_preconditioner_reach * ctx.d
-            if self.num.viscous_preconditioner_reach > 0.0 else np.inf)
+            self.num.viscous_preconditioner_reach * ctx.d)
         visc.assemble_preconditioner(ptr, cols[:nnz], vals[:nnz])
         # where each local particle's unknowns sit in the operator's input: the owned rows
         # in row order, then the points of other ranks (halo particles in a row)
@@ -473,8 +469,7 @@ class IISPH:
         # diagonal of 1e-9 one step and 1e-7 the next, and a lagged set-up then took 60
         # iterations where a fresh one took 9 (with the scaling: 11; docs/solvers.md)
         scale = unit_diagonal(ptr, cols[:nnz], vals[:nnz], ppe.offset)
-        # over the shared buffer (no copy): the viscous system writes it again only after
-        # this step's PPE solve, and the next step assembles the PPE anew
+        # over the shared buffer, no copy: the viscous system rewrites it after this solve
         ppe.assemble_csr_over(ptr, cols[:nnz], vals[:nnz],
                               same_unknowns=self._same_ppe_rows(p["id"][:n][order]))
         if coupled:

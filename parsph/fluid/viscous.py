@@ -96,11 +96,11 @@ def viscous_pairs(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h,
     """The matrix-free form of :func:`viscous_csr`: the scalar preconditioner matrix (one
     row per point), each pair's coefficient in ``coef`` and each row's form in ``kind``
     (see there) for :func:`viscous_apply`. The preconditioner's moving rows keep the
-    pairs closer than ``reach`` (m; ``inf``: all), see :func:`_viscous_rows`. Returns
+    pairs closer than ``reach`` (m; 0: all), see :func:`_viscous_rows`. Returns
     ``(nnz, rhs)``."""
     return _viscous_rows(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, dim,
                          dt, g, morris, first, out_ptr, out_cols, out_vals, True, coef, kind,
-                         reach * reach)
+                         reach * reach if reach > 0.0 else np.inf)
 
 
 @njit(cache=True)
