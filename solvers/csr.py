@@ -9,8 +9,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["check_block", "count_diagonal", "sort_neighbours_by_row", "split_diagonal_block",
-           "split_in_place", "unit_diagonal", "scale_rows"]
+__all__ = ["check_block", "count_diagonal", "sort_neighbours_by_row", "sparsify",
+           "split_diagonal_block", "split_in_place", "unit_diagonal", "scale_rows"]
 
 
 def sort_neighbours_by_row(indptr, indices, row, inplace=False):
@@ -130,6 +130,41 @@ def split_in_place(indptr, cols, vals, first, stop, oi, oj, ov):
         indptr[i + 1] = p
         oi[i + 1] = q
     return p, q
+
+
+@njit(cache=True)
+def sparsify(indptr, cols, vals, first, theta, out_ptr, out_cols, out_vals):
+    """A sparser copy of a CSR block (rows ``first, first + 1, ...``, global columns) for
+    a preconditioner: each row keeps its diagonal and the off-diagonal entries of at
+    least ``theta`` times its largest off-diagonal magnitude; the others are added to
+    its diagonal, so every row sum stays as it was (a Laplacian's constants stay its
+    null space). Writes ``out_*`` (room for the block); returns the entries written."""
+    n = indptr.shape[0] - 1
+    out_ptr[0] = 0
+    k = 0
+    for r in range(n):
+        start, stop = indptr[r], indptr[r + 1]
+        big = 0.0
+        for q in range(start, stop):
+            if cols[q] != first + r:
+                big = max(big, abs(vals[q]))
+        cut = theta * big
+        dropped = 0.0
+        at = -1
+        for q in range(start, stop):
+            c = cols[q]
+            if c == first + r or abs(vals[q]) >= cut:
+                if c == first + r:
+                    at = k
+                out_cols[k] = c
+                out_vals[k] = vals[q]
+                k += 1
+            else:
+                dropped += vals[q]
+        if at >= 0:
+            out_vals[at] += dropped
+        out_ptr[r + 1] = k
+    return k
 
 
 @njit(cache=True)

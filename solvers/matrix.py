@@ -21,7 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from solvers.csr import check_block, count_diagonal, split_diagonal_block, split_in_place
+from solvers.csr import (check_block, count_diagonal, sparsify, split_diagonal_block,
+                         split_in_place)
 from solvers.errors import SolverError, agree
 
 
@@ -258,7 +259,8 @@ class MatrixAssembly:
         self._ksp.getPC().setUp()
         self.n_builds += 1
 
-    def assemble_csr_over(self, indptr, cols, values, same_unknowns: bool = False) -> None:
+    def assemble_csr_over(self, indptr, cols, values, same_unknowns: bool = False,
+                          drop: float = 0.0) -> None:
         """Collective: :meth:`assemble_csr` with the matrix built over the caller's arrays.
 
         PETSc takes the arrays as the matrix's storage (on several ranks after a split in
@@ -274,6 +276,14 @@ class MatrixAssembly:
         this way (``parsph/fluid/stage.py``): a copy per system had cost 12 bytes per
         entry on one rank and 28 on several (docs/solvers.md).
 
+        ``drop`` > 0: a fresh BoomerAMG set-up is made on a sparser copy of the block
+        (:func:`solvers.csr.sparsify`: each row keeps the entries of at least ``drop``
+        times its largest off-diagonal magnitude, the others added to its diagonal),
+        converted in place to hypre's matrix; the copy's arrays are freed and no copy of
+        the whole matrix is made for hypre. The operator stays the whole matrix. A
+        lagged set-up makes no copy; a lagged set-up that fails is set up again on the
+        whole matrix.
+
         Raises
         ------
         ValueError, SolverError
@@ -282,11 +292,32 @@ class MatrixAssembly:
         arrays = self._csr_arrays(indptr, cols, values)
         bits = agree(self.comm, self._check_csr(*arrays), 0 if same_unknowns else 2)
         self._lag(not bits & 2)
+        sparse = None
+        if self._pc_age == 0 and self._mat is not None:  # the last set-up goes first
+            self._ksp.reset()
+        if self._pmat is not None:  # a lagged set-up holds its own reference
+            self._pmat.destroy()
+            self._pmat = None
+        if drop > 0.0 and self._pc_age == 0:  # before the split in place below
+            ptr, c, _ = arrays
+            sparse = (np.empty_like(ptr), np.empty_like(c), np.empty(c.size))
+            k = sparsify(*arrays, self.offset, drop, *sparse)
+            sparse = (sparse[0], sparse[1][:k], sparse[2][:k])
         self._finish_build(self._aij_over(*arrays))
+        if sparse is not None:
+            self._pmat = self._aij_over(*sparse)
+            self._pmat.setOptionsPrefix(self.prefix)
+            self._pmat.convert(self._PETSc.Mat.Type.HYPRE)  # in place: the arrays are free
+            del sparse
         self._held = arrays
         self._pattern = None
         self._drop_product()
-        self._ksp.setOperators(self._mat)
+        self._ksp.setOperators(self._mat, self._amg_matrix())
+
+    def _amg_matrix(self):
+        """The matrix a fresh preconditioner set-up is made on: the sparser copy of
+        ``assemble_csr_over(..., drop)`` if there is one, else the operator's."""
+        return self._pmat if self._pmat is not None else self._mat
 
     def _csr_arrays(self, indptr, cols, values):
         """The CSR block as PETSc takes it (the caller's arrays where their types fit)."""
@@ -455,7 +486,7 @@ class MatrixAssembly:
             return
         self._product = ProductOperator(self._PETSc, self.comm, self._mat, n_rows, ptr, cols,
                                         left, right, near, row_scale)
-        self._ksp.setOperators(self._product.mat, self._mat)
+        self._ksp.setOperators(self._product.mat, self._amg_matrix())
 
     def _drop_product(self) -> None:
         if getattr(self, "_product", None) is not None:

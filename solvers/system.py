@@ -181,6 +181,7 @@ class LinearSystem(MatrixAssembly):
         self._pattern = None  # indptr, indices (+ keys, inverse, rows, cols from triplets) of the last assembly
         self._arrays = {}  # arrays of the matrices built on arrays, see _array
         self._held = None  # the caller's arrays a matrix is built over (assemble_csr_over)
+        self._pmat = None  # a sparser matrix BoomerAMG was set up on (assemble_csr_over)
         self._ksp = self._create_ksp(ksp_type, pc_type, rtol, atol, max_it,
                                      {**_HYPRE_DEFAULTS, **(hypre_options or {})})
 
@@ -241,6 +242,9 @@ class LinearSystem(MatrixAssembly):
             self._ksp.reset()
             self._mat.destroy()
             self._mat = None
+        if self._pmat is not None:
+            self._pmat.destroy()
+            self._pmat = None
         self._pattern = None
         self._held = None
         self._pc_age = 0
@@ -384,6 +388,7 @@ class LinearSystem(MatrixAssembly):
                 self._ksp.setTolerances(max_it=max_it)
             if int(self._ksp.getConvergedReason()) <= 0:
                 self._ksp.getPC().setReusePreconditioner(False)
+                self._ksp.setOperators(self._ksp.getOperators()[0], self._mat)
                 self._pc_age = 0
                 self._x.set(0.0) if x0 is None else self._x.setArray(x0.reshape(-1))
                 self._ksp.solve(self._b, self._x)
@@ -432,10 +437,10 @@ class LinearSystem(MatrixAssembly):
         """Collective: free the PETSc objects; safe to call more than once."""
         if not self._PETSc.Sys.isFinalized():
             self._drop_product()
-            for obj in (self._ksp, self._mat, self._nullspace, self._x, self._b):
+            for obj in (self._ksp, self._mat, self._pmat, self._nullspace, self._x, self._b):
                 if obj is not None:
                     obj.destroy()
-        self._ksp = self._mat = self._nullspace = self._x = self._b = None
+        self._ksp = self._mat = self._pmat = self._nullspace = self._x = self._b = None
         self._pattern = None
         self._arrays = {}
         self._held = None

@@ -499,6 +499,67 @@ def test_assemble_csr_over_solves_from_one_reused_buffer(comm):
         assert system.n_setups == 2 and system.n_builds == 5
 
 
+def test_sparsify_keeps_large_entries_and_row_sums():
+    """sparsify: each row keeps its diagonal and the entries of at least theta times its
+    largest off-diagonal magnitude; the row sums are those of the block."""
+    from solvers.csr import sparsify
+
+    n, first, stop = 12, 40, 100
+    indptr, cols, vals, block = _poisson_csr(n, first, stop, shift=0.3)
+    rng = np.random.default_rng(3)
+    vals = vals * np.where(cols == np.repeat(np.arange(first, stop), np.diff(indptr)), 1.0,
+                           rng.uniform(0.05, 1.0, vals.size))
+    out = np.zeros_like(indptr), np.zeros_like(cols), np.zeros(vals.size)
+    k = sparsify(indptr, cols, vals, first, 0.5, *out)
+    assert 0 < k < cols.size
+    full = sp.csr_matrix((vals, cols, indptr), shape=(stop - first, n * n))
+    thin = sp.csr_matrix((out[2][:k], out[1][:k], out[0]), shape=(stop - first, n * n))
+    np.testing.assert_allclose(thin.sum(axis=1), full.sum(axis=1), rtol=1e-13, atol=1e-13)
+    for r in range(stop - first):
+        row, kept = full.getrow(r).toarray()[0], thin.getrow(r).toarray()[0]
+        off = np.arange(n * n) != first + r
+        big = np.abs(row[off]).max()
+        assert np.array_equal(kept[off], np.where(np.abs(row[off]) >= 0.5 * big, row[off], 0.0))
+
+
+def test_preconditioner_on_a_sparser_copy_solves_the_whole_matrix(comm):
+    """assemble_csr_over(drop=...): BoomerAMG set up on a sparser copy (a hypre matrix of
+    its own, made only for a fresh set-up); the Krylov method solves the whole matrix to
+    its tolerance, lagged set-ups make no copy."""
+    n = 40
+    total = n * n
+    with LinearSystem(comm, "thin_", block_rows(comm, total), ksp_type="gmres", rtol=1e-10,
+                      reuse_preconditioner=2) as system, \
+            LinearSystem(comm, "full_", block_rows(comm, total), ksp_type="preonly") as ref:
+        first, stop = system.owned_range
+        b = rhs_of(total)[first:stop]
+        for k in range(4):
+            indptr, cols, vals, block = _poisson_csr(n, first, stop, shift=0.01 * k,
+                                                     extra=k == 2)
+            # the far entries small: a sparser copy for the set-up
+            far = np.abs(cols - np.repeat(np.arange(first, stop), np.diff(indptr))) > 1
+            vals = np.where(far, 0.05 * vals, vals)
+            block = sp.csr_matrix((vals, cols, indptr), shape=block.shape)
+            given = indptr.copy(), cols.copy(), vals.copy()  # several ranks: split in place
+            arrays = [np.array(a, dtype=t) for a, t in
+                      ((indptr, system.index_dtype), (cols, system.index_dtype), (vals, float))]
+            system.assemble_csr_over(*arrays, same_unknowns=True, drop=0.1)
+            fresh = k % 2 == 0
+            assert (system._pmat is not None) == fresh
+            x, info = system.solve(b)
+            if fresh:  # BoomerAMG on the copy: not the one on the whole matrix
+                assert system._pmat.getType() == "hypre"
+                ref.assemble_csr(*given)
+                ref.ksp.getPC().setUp()
+                u, w, y = (ref._b.duplicate() for _ in range(3))
+                u.setArray(b)
+                system.ksp.getPC().apply(u, w)
+                ref.ksp.getPC().apply(u, y)
+                assert not np.allclose(w.getArray(), y.getArray(), rtol=1e-6, atol=0.0)
+            assert info["fresh_setup"] == fresh
+            assert _residual(comm, block, x, b) < 1e-8
+
+
 def test_lagged_preconditioner_serves_k_solves_over_the_same_unknowns(comm):
     """reuse_preconditioner = 3: one AMG set-up per three matrices of the same unknowns,
     new patterns included; every solve still meets its tolerance. Different unknowns

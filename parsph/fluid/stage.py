@@ -470,8 +470,8 @@ class IISPH:
         # iterations where a fresh one took 9 (with the scaling: 11; docs/solvers.md)
         scale = unit_diagonal(ptr, cols[:nnz], vals[:nnz], ppe.offset)
         # over the shared buffer, no copy: the viscous system rewrites it after this solve
-        ppe.assemble_csr_over(ptr, cols[:nnz], vals[:nnz],
-                              same_unknowns=self._same_ppe_rows(p["id"][:n][order]))
+        ppe.assemble_csr_over(ptr, cols[:nnz], vals[:nnz], self._same_ppe_rows(
+            p["id"][:n][order]), self.num.ppe_preconditioner_drop)
         if coupled:
             scale_rows(near[0], near[2][:n_near], scale)
             ppe.set_product(*blocks, near=(near[0], near[1][:n_near], near[2][:n_near]),

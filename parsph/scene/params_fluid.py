@@ -83,6 +83,12 @@ class FluidNumerics:
         "the same); 1.5 keeps ~18 of ~57 neighbours in 3D: the viscous solve 2.3x faster "
         "at the same iterations and its hierarchy a third (docs/solvers.md); 0 = every pair",
         ge=0.0)
+    ppe_preconditioner_drop: float = spec(
+        0.1, doc="BoomerAMG of the PPE is set up on a sparser copy of its matrix: each row "
+        "keeps the entries of at least this share of its largest off-diagonal one, the others "
+        "added to its diagonal (the operator keeps every entry, so the solution is the same); "
+        "0.1: about an iteration more and the PPE solve twice as fast in 3D (docs/solvers.md); "
+        "0 = the whole matrix", ge=0.0, lt=1.0)
     splitting: str = spec("projection_first", doc="order of an implicit step's two solves: "
                           "projection_first (the PPE on v + dt g, then the viscous solve on "
                           "the projected velocity with the new pressure in the yield stress "
