@@ -247,9 +247,7 @@ class MatrixAssembly:
             self._ksp.reset()
             self._mat.destroy()
             self._mat = None
-        mat = self._aij_over(*arrays)
-        mat.setOptionsPrefix(self.prefix)
-        mat.convert(PETSc.Mat.Type.HYPRE)  # in place (petsc4py converts in place without `out`)
+        mat = self._hypre_over(*arrays)
         self._mat = mat
         self._pattern = None
         self._held = None
@@ -305,9 +303,7 @@ class MatrixAssembly:
             sparse = (sparse[0], sparse[1][:k], sparse[2][:k])
         self._finish_build(self._aij_over(*arrays))
         if sparse is not None:
-            self._pmat = self._aij_over(*sparse)
-            self._pmat.setOptionsPrefix(self.prefix)
-            self._pmat.convert(self._PETSc.Mat.Type.HYPRE)  # in place: the arrays are free
+            self._pmat = self._hypre_over(*sparse)
             del sparse
         self._held = arrays
         self._pattern = None
@@ -325,6 +321,15 @@ class MatrixAssembly:
         return (np.ascontiguousarray(indptr, dtype=int_type),
                 np.ascontiguousarray(cols, dtype=int_type),
                 np.ascontiguousarray(values, dtype=np.float64))
+
+    def _hypre_over(self, indptr, cols, values):
+        """Collective: :meth:`_aij_over` converted in place to hypre's ParCSR matrix
+        (petsc4py's ``convert`` without ``out``): a copy in hypre, after which nothing
+        refers to the arrays."""
+        mat = self._aij_over(indptr, cols, values)
+        mat.setOptionsPrefix(self.prefix)
+        mat.convert(self._PETSc.Mat.Type.HYPRE)
+        return mat
 
     def _aij_over(self, indptr, cols, values):
         """Collective: an AIJ matrix over a checked CSR block of the owned rows (PETSc's

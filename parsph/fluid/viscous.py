@@ -204,11 +204,13 @@ def _viscous_rows(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h,
                 elif not fluid[j]:
                     continue
                 d0, d1, d2, r2 = delta(x, i, j, dim)
-                if moving and scalar and r2 >= reach2:  # the operator's, not the matrix's
-                    if pairs:
-                        coef[p] = _viscous_pair(m, rho, nu, fluid, i, j, r2, kc, dim, dt,
-                                                eta2, morris) * (1.0 if fluid[i] else solid[i])
-                    continue
+                if moving:
+                    c = _viscous_pair(m, rho, nu, fluid, i, j, r2, kc, dim, dt, eta2, morris) \
+                        * (1.0 if fluid[i] else solid[i])
+                    if scalar and r2 >= reach2:  # the operator's pair, not the matrix's
+                        if pairs:
+                            coef[p] = c
+                        continue
                 if dslot < 0 and rj >= ri:
                     dslot, t, last = _slot(out_cols, out_vals, base, span, bw, nd, t, last, ri)
                 s, t, last = _slot(out_cols, out_vals, base, span, bw, nd, t, last, rj)
@@ -219,9 +221,7 @@ def _viscous_rows(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h,
                     for a in range(nd):
                         out_vals[base + a * span + s] += wij
                     continue
-                c = _viscous_pair(m, rho, nu, fluid, i, j, r2, kc, dim, dt, eta2, morris) \
-                    * (1.0 if fluid[i] else solid[i])
-                if pairs:
+                if pairs:  # a moving row (the ghost rows went on above)
                     coef[p] = c
                 if morris or scalar:
                     cs = c if morris else c * r2 / dim  # the block's trace over dim
