@@ -9,6 +9,7 @@ import numpy as np
 from decomposition.box import Box
 from decomposition.halo import Halo
 from decomposition.partition import RCB
+from decomposition.reduce import global_any
 from parsph.core.particles import PHASE_WALL, ParticleSet
 
 
@@ -55,6 +56,8 @@ class Context:
     #: :func:`run`). ``fluid.preconditioner_reuse`` with an implicit fluid, else 1.
     sync_every: int = 1
     sync_point: bool = False
+    #: (names, lo, hi, rows): the last wall lookup of :meth:`nearby_walls` and its box
+    wall_cache: tuple = None
 
     @property
     def n_owned(self) -> int:
@@ -68,10 +71,40 @@ class Context:
             p[name][p.n_owned:] = rows
 
     def nearby_walls(self, names, around=None) -> dict:
-        """Collective: the named fields of every wall row near this rank's particles
-        (``around``: bool mask of owned rows, default all), see :meth:`nearby`."""
+        """Collective: the named fields of every wall row within 2h of this rank's
+        particles (``around``: bool mask of owned rows, default all; current ``x``),
+        sorted by particle id, so the result does not depend on the lookup's history.
+
+        The walls are fixed: one lookup around the particles' bounding box widened by
+        2h serves every later call while each rank's particles stay inside that box; the
+        test is one logical-or reduction, where a lookup is an ``allgather`` and an
+        exchange (of a 2D coupled step of 260 particles, 0.2 of its 2.4 ms)."""
         p = self.particles
-        return self.nearby(p["phase"][: p.n_owned] == PHASE_WALL, names, around=around)
+        x = p["x"][: p.n_owned]
+        pts = x if around is None else x[around]
+        if len(pts):
+            lo, hi = pts.min(axis=0), pts.max(axis=0)
+        else:
+            lo, hi = np.full(self.dim, np.inf), np.full(self.dim, -np.inf)
+        key = tuple(names) + ("id",)
+        c = self.wall_cache
+        stale = c is None or c[0] != key or bool((lo < c[1]).any() or (hi > c[2]).any())
+        if global_any(self.comm, stale):
+            lo, hi = lo - self.radius, hi + self.radius
+            rows = self._walls_near(key, lo, hi)
+            order = np.argsort(rows["id"], kind="stable")
+            self.wall_cache = (key, lo, hi, {k: a[order] for k, a in rows.items()})
+        return self.wall_cache[3]
+
+    def _walls_near(self, names, lo, hi) -> dict:
+        """Collective: the named fields of the wall rows within 2h of the box [lo, hi]."""
+        from decomposition.halo import proximity_halo
+
+        p = self.particles
+        n = p.n_owned
+        halo = proximity_halo(self.comm, p["x"][:n], p["phase"][:n] == PHASE_WALL, self.radius,
+                              lo, hi, self.box)
+        return halo.exchange(p.owned_fields(names), shift_fields=("x", "X"))
 
     def body_acceleration(self, t: float) -> np.ndarray:
         """g − s a_ground(t − t_0) (m/s²): gravity and the earthquake record, section 6.3.
@@ -88,24 +121,3 @@ class Context:
     @property
     def gravity(self) -> np.ndarray:
         return np.asarray(self.scene.gravity.g, dtype=float)
-
-    def nearby(self, select, names, radius: float | None = None, around=None) -> dict:
-        """Collective: owned rows of every rank (``select`` mask) near this rank's particles.
-
-        ``around`` (bool mask of owned rows, default all) chooses the particles whose
-        current bounding box, widened by ``radius`` (default 2h), defines "near". Returns
-        the named fields of those rows, this rank's own included. Used for neighbours in
-        the current configuration when ownership follows the reference one (walls seen
-        by TLSPH particles).
-        """
-        from decomposition.halo import proximity_halo
-
-        p = self.particles
-        x = p["x"][: p.n_owned]
-        pts = x if around is None else x[around]
-        if len(pts):
-            lo, hi = pts.min(axis=0), pts.max(axis=0)
-        else:
-            lo, hi = np.full(self.dim, np.inf), np.full(self.dim, -np.inf)
-        halo = proximity_halo(self.comm, x, select, radius or self.radius, lo, hi, self.box)
-        return halo.exchange(p.owned_fields(names), shift_fields=("x", "X"))

@@ -33,30 +33,17 @@ class SolidContext(Context):
     """The context TLSPH sees in a coupled scene; walls are looked up in ``main``."""
 
     main: Context = None
-    _walls: tuple = None  # (main step, names, rows): the walls of the last lookup
 
-    def nearby_walls(self, names, around=None) -> dict:
-        """Collective: wall rows of the main set near this rank's solids (current x).
-
-        The walls are fixed and a solid moves less than d in a coupled step (its speed
-        bounds the step, ``fluid.cfl <= 1``): the lookup, d wider, serves every solid
-        sub-step of one coupled step (``main.step``)."""
-        step = self.main.step
-        if self._walls is not None and self._walls[0] == step and self._walls[1] == tuple(names):
-            return self._walls[2]
+    def _walls_near(self, names, lo, hi) -> dict:
+        """Collective: the wall rows of the main set within 2h of the box [lo, hi]. A
+        solid moves less than d in a coupled step (its speed bounds the step,
+        ``fluid.cfl <= 1``), so the lookup box of :meth:`Context.nearby_walls` serves
+        several steps."""
         m = self.main.particles
         n = m.n_owned
-        x = self.particles["x"][: self.n_owned]
-        pts = x if around is None else x[around]
-        if len(pts):
-            lo, hi = pts.min(axis=0) - self.d, pts.max(axis=0) + self.d
-        else:
-            lo, hi = np.full(self.dim, np.inf), np.full(self.dim, -np.inf)
         halo = proximity_halo(self.comm, m["x"][:n], m["phase"][:n] == PHASE_WALL,
                               self.radius, lo, hi, self.box)
-        rows = halo.exchange(m.owned_fields(names), shift_fields=("x", "X"))
-        self._walls = (step, tuple(names), rows)
-        return rows
+        return halo.exchange(m.owned_fields(names), shift_fields=("x", "X"))
 
 
 class SolidView:
