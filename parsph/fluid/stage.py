@@ -336,8 +336,8 @@ class IISPH:
         src[order] = np.arange(order.size)
         halo = np.flatnonzero(row[n:] >= 0) + n
         src[halo] = order.size + np.arange(halo.size)
-        visc.set_operator(lambda u, out: viscous.viscous_apply(
-            u, out, order, src, kind, coef, x, indptr, indices, dim), row[halo])
+        visc.set_operator(*viscous.operator_callbacks(order, src, kind, coef, x, indptr,
+                                                      indices, dim, row[halo]))
         return rhs
 
     def step(self, ctx, dt, coupling=None) -> None:

@@ -290,6 +290,46 @@ def viscous_apply(u, out, order, src, kind, coef, x, indptr, indices, dim):
         _store(out, q, dim, o0, o1, o2)
 
 
+def operator_callbacks(order, src, kind, coef, x, indptr, indices, dim, ghost_points):
+    """The arguments of :meth:`solvers.OperatorSystem.set_operator` for the pairs of
+    :func:`viscous_pairs`: the operator (:func:`viscous_apply`), the other ranks' points
+    it reads, and the ghost rows solved exactly after each AMG application
+    (:func:`ghost_rows_exact`)."""
+    def apply(u, out):
+        viscous_apply(u, out, order, src, kind, coef, x, indptr, indices, dim)
+
+    def correct(u, b, out):
+        ghost_rows_exact(u, b, out, order, src, kind, coef, indptr, indices, dim)
+
+    return apply, ghost_points, correct
+
+
+@njit(cache=True)
+def ghost_rows_exact(u, b, out, order, src, kind, coef, indptr, indices, dim):
+    """The no-slip ghost rows (kind 2) of :func:`viscous_apply` solved exactly for the
+    fluid's values in ``u`` (laid out as there): ``out[q] = b[q] - sum_f w_qf u_f``.
+
+    A preconditioner step after BoomerAMG (:class:`solvers.OperatorSystem`'s
+    ``correct``). A ghost row is an extrapolation of the fluid (its couplings sum to 1);
+    on one rank the forward Gauss-Seidel sweep, walls after the fluid, solves it, but a
+    wall whose fluid is partly on another rank gets only a Jacobi update there: the 3D
+    tank of ``jobs/bench_memory.py`` took 5 viscous iterations on 2 ranks, 3 on one."""
+    for q in range(order.shape[0]):
+        i = order[q]
+        if kind[i] != 2:
+            continue
+        o0, o1, o2 = _vec(b, q, dim)
+        for p in range(indptr[i], indptr[i + 1]):
+            c = coef[p]
+            if c == 0.0:
+                continue
+            uj0, uj1, uj2 = _vec(u, src[indices[p]], dim)
+            o0 -= c * uj0
+            o1 -= c * uj1
+            o2 -= c * uj2
+        _store(out, q, dim, o0, o1, o2)
+
+
 @njit(cache=True, inline="always")
 def _add_block(vals, at, span, dim, c00, c01, c02, c11, c12, c22):
     """Add the symmetric block ``c`` to the ``dim`` rows written side by side: row ``a``
