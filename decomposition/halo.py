@@ -426,25 +426,40 @@ def _box_images(box, dim):
     return box.image_shifts()
 
 
-def _near_box(x, shift, lo, hi, radius):
-    """Rows whose image ``x + shift`` lies within ``radius`` of the box [lo, hi]."""
-    y = x + shift
-    return np.all((y >= lo - radius) & (y <= hi + radius), axis=1)
+@njit(cache=True)
+def _near_boxes(x, shift, lo, hi, radius):
+    """Rows whose image ``x + shift`` lies within ``radius`` of any box ``[lo[b], hi[b]]``
+    (one pass over the rows; an empty box, lo > hi on an axis, is near nothing)."""
+    n, dim = x.shape
+    near = np.zeros(n, dtype=np.bool_)
+    for i in range(n):
+        for b in range(lo.shape[0]):
+            inside = True
+            for a in range(dim):
+                y = x[i, a] + shift[a]
+                if not (y >= lo[b, a] - radius and y <= hi[b, a] + radius):
+                    inside = False
+                    break
+            if inside:
+                near[i] = True
+                break
+    return near
 
 
 def _image_send_lists(comm, x, boxes_of, radius, shifts, with_self_zero):
     """Per destination: the rows (and their image offsets) near any of its boxes."""
     send, send_shift = [], []
+    x = np.ascontiguousarray(x, dtype=np.float64).reshape(len(x), -1)
     for q, boxes in enumerate(boxes_of):
         rows, offs = [], []
+        boxes = [(blo, bhi) for blo, bhi in boxes if not np.any(blo > bhi)]
+        lo = np.array([b[0] for b in boxes], dtype=np.float64).reshape(len(boxes), x.shape[1])
+        hi = np.array([b[1] for b in boxes], dtype=np.float64).reshape(len(boxes), x.shape[1])
         for k, s in enumerate(shifts):
             if k == 0 and q == comm.rank and not with_self_zero:
                 continue
-            near = np.zeros(len(x), dtype=bool)
-            for blo, bhi in boxes:
-                if len(x) and not np.any(blo > bhi):
-                    near |= _near_box(x, s, blo, bhi, radius)
-            idx = np.flatnonzero(near)
+            idx = np.flatnonzero(_near_boxes(x, np.asarray(s, dtype=np.float64), lo, hi,
+                                             float(radius)))
             rows.append(idx)
             offs.append(np.repeat(s[None, :], len(idx), axis=0))
         send.append(np.concatenate(rows) if rows else np.zeros(0, dtype=np.int64))

@@ -475,3 +475,33 @@ def test_halo_without_rows_checks_fields_like_a_real_exchange():
     assert got["F"].dtype == np.float32
     with pytest.raises(ValueError, match="rebuild the halo"):
         halo.exchange({"x": x[:5]})
+
+
+def test_set_halo_writes_halo_rows_after_the_owned_ones_in_place():
+    """The halo rows follow the owned rows, which are never copied while their array
+    has room after them (the last step's halo, no row changed rank): the same memory is
+    reused for a halo of equal or smaller size, a larger one gets a new array; fields
+    absent from the halo get zero rows."""
+    from parsph.core.particles import ParticleSet
+
+    rng = np.random.default_rng(3)
+    p = ParticleSet(2, {"id": np.arange(5), "x": rng.random((5, 2)), "m": np.ones(5)})
+    owned_x = p["x"].copy()
+    p.set_halo({"id": np.array([7, 8, 9]), "x": np.full((3, 2), 2.0), "m": np.full(3, 3.0)})
+    assert p.n_total == 8 and list(p["id"]) == [0, 1, 2, 3, 4, 7, 8, 9]
+    np.testing.assert_array_equal(p["x"][:5], owned_x)
+    np.testing.assert_array_equal(p["x"][5:], 2.0)
+    where = p["x"].__array_interface__["data"][0]
+    # a new halo of two rows, no "m": in place, the owned rows untouched
+    p.set_owned(p.owned_fields())
+    p.set_halo({"id": np.array([11, 12]), "x": np.full((2, 2), 4.0)})
+    assert p["x"].__array_interface__["data"][0] == where and p.n_total == 7
+    np.testing.assert_array_equal(p["x"][:5], owned_x)
+    np.testing.assert_array_equal(p["x"][5:], 4.0)
+    np.testing.assert_array_equal(p["m"], [1, 1, 1, 1, 1, 0, 0])
+    # a halo larger than the room: a new array with the same owned rows
+    p.set_owned(p.owned_fields())
+    p.set_halo({"id": np.arange(20, 30), "x": np.full((10, 2), 5.0), "m": np.ones(10)})
+    assert p["x"].__array_interface__["data"][0] != where and p.n_total == 15
+    np.testing.assert_array_equal(p["x"][:5], owned_x)
+    np.testing.assert_array_equal(p["x"][5:], 5.0)

@@ -59,17 +59,27 @@ class ParticleSet:
         self.n_halo = 0
 
     def set_halo(self, halo: dict) -> None:
-        """Append halo rows; fields absent from ``halo`` get zero rows."""
+        """Append halo rows; fields absent from ``halo`` get zero rows.
+
+        The owned rows are not copied: a field whose array has room after them (the
+        array of the last step's halo, when no row changed rank) takes the halo rows in
+        place; otherwise a new array is made, with room for an eighth more halo rows.
+        Copying every field's owned rows each step had cost 12 ms per step of a 3D
+        coupled tank of 112,761 particles on 2 ranks (docs/performance.md)."""
         n = len(next(iter(halo.values()))) if halo else 0
+        own_n, total = self.n_owned, self.n_owned + n
         for name, arr in self.data.items():
-            own = arr[: self.n_owned]
+            own = arr[:own_n]
             if n == 0:  # no halo (one rank, or isolated): no copy of the owned rows
                 self.data[name] = own
                 continue
+            buf = _room_after(own, total)
+            if buf is None:
+                buf = np.empty((total + n // 8,) + own.shape[1:], dtype=own.dtype)
+                buf[:own_n] = own
             extra = halo.get(name)
-            if extra is None:
-                extra = np.zeros((n,) + own.shape[1:], dtype=own.dtype)
-            self.data[name] = np.concatenate([own, extra.astype(own.dtype, copy=False)])
+            buf[own_n:total] = 0 if extra is None else extra
+            self.data[name] = buf[:total]
         self.n_halo = n
 
     def owned_fields(self, names=None) -> dict:
@@ -96,3 +106,15 @@ class ParticleSet:
 
     def nbytes(self) -> int:
         return sum(a.nbytes for a in self.data.values())
+
+
+def _room_after(own: np.ndarray, total: int):
+    """The writable array whose first rows ``own`` is (same dtype and row shape), if it
+    has at least ``total`` rows; else None."""
+    base = own.base if own.base is not None else own
+    if (isinstance(base, np.ndarray) and base.flags.c_contiguous and base.flags.writeable
+            and base.dtype == own.dtype and base.shape[1:] == own.shape[1:]
+            and base.shape[0] >= total
+            and base.__array_interface__["data"][0] == own.__array_interface__["data"][0]):
+        return base
+    return None
