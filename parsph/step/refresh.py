@@ -80,6 +80,12 @@ def _distribute(ctx, force: bool = False) -> None:
     ``run.rebalance_tolerance`` times the mean (docs/decomposition.md).
     """
     p, comm, key = ctx.particles, ctx.comm, ctx.key
+    if (comm.size == 1 and not force and not ctx.box.any_periodic and ctx.rcb is not None
+            and (ctx.layout != "mixed" or ctx.rcb_ref is not None)):
+        # one rank without images: every row stays and is never wrapped (a 2D coupled
+        # step of 262 particles spent 0.15 of its 2.4 ms finding that out)
+        p.set_owned(p.owned_fields())
+        return
     owned = p.owned_fields()
     if ctx.box.periodic and any(ctx.box.periodic):
         # a TLSPH solid keeps its unwrapped x, continuous with its reference X (its
@@ -204,6 +210,9 @@ def refresh(ctx, force_partition: bool = False) -> None:
         ctx.comm, bool((p["phase"][: p.n_owned] == PHASE_FLUID).any()))
 
     def halo():
+        if ctx.comm.size == 1 and not ctx.box.any_periodic and ctx.halo is not None:
+            p.set_halo({})  # one rank without images has no halo rows
+            return
         if ctx.layout == "mixed":
             n = p.n_owned
             phase = p["phase"][:n]
