@@ -416,3 +416,26 @@ def test_mcc_trial_is_objective():
     J = 0.98
     tau_tr = mcc.mcc_trial(-300e3 * np.eye(3), J ** (1 / 3) * np.eye(3), V0, KAPPA, NU1)
     assert np.allclose(tau_tr, -300e3 * J ** (-V0 / KAPPA) * np.eye(3), rtol=1e-12)
+
+
+def test_elastic_energy_is_the_hencky_energy_of_the_selected_non_cam_clay_rows():
+    """The stored energy of stats.csv: sum V0 (mu dev e : dev e + K/2 tr(e)^2) over the
+    selected rows whose model is not Cam-Clay."""
+    from parsph.solid.update import C, CAM_CLAY, HENCKY, elastic_energy
+
+    rng = np.random.default_rng(5)
+    tab = np.zeros((2, len(C)))
+    tab[0, C["model"]], tab[0, C["K"]], tab[0, C["mu"]] = HENCKY, 3.0e6, 1.2e6
+    tab[1, C["model"]], tab[1, C["K"]], tab[1, C["mu"]] = CAM_CLAY, 9.0e9, 9.0e9
+    n = 50
+    e = rng.normal(scale=1e-3, size=(n, 3, 3))
+    e = 0.5 * (e + e.transpose(0, 2, 1))
+    material = rng.integers(0, 2, n).astype(np.int16)
+    sel = rng.random(n) < 0.7
+    vol = rng.random(n)
+    keep = sel & (material == 0)
+    tr = np.trace(e, axis1=1, axis2=2)
+    dev2 = np.einsum("nij,nij->n", e, e) - tr * tr / 3.0
+    expect = np.sum(vol[keep] * (1.2e6 * dev2[keep] + 0.5 * 3.0e6 * tr[keep] ** 2))
+    got = elastic_energy(tab, material, sel, n, vol, e)
+    assert got == pytest.approx(expect, rel=1e-12) and expect > 0

@@ -31,7 +31,7 @@ from parsph.scene.materials import PHASE_SOLID
 from parsph.solid import kernels
 from parsph.core.contact import wall_contact
 from parsph.solid.boundary import initial_velocity, velocity_masks
-from parsph.solid.update import CAM_CLAY, C, material_table, stress_terms, \
+from parsph.solid.update import CAM_CLAY, C, elastic_energy, material_table, stress_terms, \
     update_particles, wave_speed
 
 TRIAXIAL_COLUMNS = ("axial_strain", "p_eff", "q", "spec_volume", "M")
@@ -256,18 +256,10 @@ class TLSPH:
         return global_sum(ctx.comm, count)
 
     def _elastic_energy(self, ctx) -> float:
-        """Stored Hencky energy sum V0 (mu dev e : dev e + K/2 tr(e)^2) (J or J/m in 2D) of
-        the Hencky and Drucker-Prager solids (whose elastic part is Hencky's, with the
-        elastic strain of eq. (26)); Cam-Clay's pressure-dependent elasticity is left out."""
+        """Collective: the stored elastic energy of the owned solids (:func:`elastic_energy`:
+        Hencky and Drucker-Prager, whose elastic part is Hencky's), summed over the ranks."""
         p, n = ctx.particles, ctx.particles.n_owned
-        mat = p["material"][:n]
-        keep = self.sel[:n] & (self.tab[np.maximum(mat, 0), C["model"]] != CAM_CLAY)
-        e = p["eps_e"][:n][keep]
-        K = self.tab[mat[keep], C["K"]]
-        mu = self.tab[mat[keep], C["mu"]]
-        tr = np.trace(e, axis1=1, axis2=2)
-        dev2 = np.einsum("nij,nij->n", e, e) - tr * tr / 3.0
-        local = float(np.sum(self.vol[:n][keep] * (mu * dev2 + 0.5 * K * tr * tr)))
+        local = elastic_energy(self.tab, p["material"], self.sel, n, self.vol, p["eps_e"])
         return global_sum(ctx.comm, local)
 
     def _triaxial(self, ctx, dt) -> None:

@@ -95,6 +95,29 @@ def wave_speed(tab, material, pressure, porosity, sel, n, modulus):
 
 
 @njit(cache=True)
+def elastic_energy(tab, material, sel, n, vol, eps_e):
+    r"""Stored Hencky energy :math:`\sum V_0 (\mu\,\mathrm{dev}\,arepsilon :
+    \mathrm{dev}\,arepsilon + 	frac{K}{2} (\mathrm{tr}\,arepsilon)^2)` (J, or J/m in
+    2D) of the selected Hencky and Drucker-Prager rows, ``eps_e`` the elastic log strain
+    (eq. (26)); Cam-Clay's pressure-dependent elasticity is left out."""
+    total = 0.0
+    for i in range(n):
+        if not sel[i]:
+            continue
+        row = tab[material[i]]
+        if row[0] == CAM_CLAY:
+            continue
+        e = eps_e[i]
+        tr = e[0, 0] + e[1, 1] + e[2, 2]
+        sq = 0.0
+        for a in range(3):
+            for b in range(3):
+                sq += e[a, b] * e[a, b]
+        total += vol[i] * (row[2] * (sq - tr * tr / 3.0) + 0.5 * row[1] * tr * tr)
+    return total
+
+
+@njit(cache=True)
 def update_particles(tab, material, sel, n, dt, Fdot, F, tau, eps_e, P, eps_p, p_c,
                      porosity, pressure, failed, dim):
     """Advance F, porosity and stress of the owned solid particles by one step.
