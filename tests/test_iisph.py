@@ -368,6 +368,15 @@ def test_strain_rate_of_simple_shear_and_bingham_viscosity():
     tau_y = 10.0 + 1000.0 * math.tan(math.radians(19.5))
     assert nu[0] == 1e4 and nu[1] == 1e4  # eq. (40), below the threshold: nu_fMAX
     assert nu[2] == pytest.approx(1e-3 + tau_y / (2.0 * 1655.0))
+    # the stage computes eq. (39) only where a viscosity reads it: a Bingham (or eddy)
+    # fluid row; a Newtonian fluid's viscosity is constant
+    fluid, none = np.ones(n, np.uint8), np.zeros(n)
+    for model, expect in (("bingham", gamma[0]), ("eddy", gamma[0]), (None, 0.0)):
+        flags = {k: np.array([int(k == model)], np.uint8) for k in ("bingham", "eddy")}
+        got = rheology.fluid_strain_rate(x, v, v, ones * 1000 * d * d, ones * 1000, fluid,
+                                         none, np.zeros(n, np.uint8), indptr, near, h, 2,
+                                         np.zeros(n, np.int16), {**table, **flags})
+        assert got[0] == expect
 
 
 def _lattice_gradient(x, p, h, dim=2):

@@ -34,7 +34,7 @@ from numba import njit
 
 from parsph.core.kernel import constants, delta, fac_grad_k
 
-__all__ = ["strain_rate", "viscosity"]
+__all__ = ["fluid_strain_rate", "strain_rate", "viscosity"]
 
 
 @njit(cache=True)
@@ -82,6 +82,24 @@ def strain_rate(x, v, m, rho, fluid, slip, indptr, indices, h, dim):
     """
     out = np.empty(len(indptr) - 1)
     return _strain_rate(x, v, m, rho, fluid, slip, indptr, indices, float(h), int(dim), out)
+
+
+def fluid_strain_rate(x, v, v_ghost, m, rho, fluid, solid, slip, indptr, indices, h, dim,
+                      material, table):
+    """:func:`strain_rate` of the owned rows where a viscosity reads it, zeros elsewhere.
+
+    Only the Bingham viscosity (40) and the eddy viscosity (41) depend on the strain
+    rate; while no owned fluid row has such a material (water, or a landslide before
+    any soil fluidises) it is not computed (21 ms of a 0.57 s step of the 3D coupled
+    tank at 1.1e5 particles). Wall rows enter with their no-slip ghost velocity of the
+    last viscous solve (Adami et al. 2012), fluid and solid rows (``solid > 0``) with
+    their velocity."""
+    n = len(indptr) - 1
+    rows = material[:n][fluid[:n] == 1]
+    if not (table["bingham"][rows] | table["eddy"][rows]).any():
+        return np.zeros(n)
+    vel = np.where(((fluid == 1) | (solid > 0))[:, None], v, v_ghost)
+    return strain_rate(x, vel, m, rho, fluid, slip, indptr, indices, h, dim)
 
 
 @njit(cache=True)

@@ -393,10 +393,8 @@ class IISPH:
         self._halo(ctx, ["rho", "free_surface"])
 
         t0 = time.perf_counter()
-        # wall rows enter the strain rate with their no-slip ghost velocity of the last
-        # viscous solve (Adami et al. 2012), fluid and solid rows with their velocity
-        vel = np.where(((fluid == 1) | (solid > 0))[:, None], p["v"], p["v_ghost"])
-        gamma = rheology.strain_rate(x, vel, m, rho, fluid, slip, indptr, indices, h, dim)
+        gamma = rheology.fluid_strain_rate(x, p["v"], p["v_ghost"], m, rho, fluid, solid, slip,
+                                           indptr, indices, h, dim, p["material"], self.table)
         self._viscosity(ctx, gamma, fluid[:n])
         if coupled:  # the solids' acceleration per unit of their own pressure
             p["a_self"][:n] = response.self_response(x, m, rho, rho0, fluid, solid,
