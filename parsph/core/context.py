@@ -96,11 +96,17 @@ class Context:
             self.wall_cache = (key, lo, hi, {k: a[order] for k, a in rows.items()})
         return self.wall_cache[3]
 
+    @property
+    def wall_set(self) -> ParticleSet:
+        """The particle set whose owned wall rows :meth:`nearby_walls` looks up."""
+        return self.particles
+
     def _walls_near(self, names, lo, hi) -> dict:
-        """Collective: the named fields of the wall rows within 2h of the box [lo, hi]."""
+        """Collective: the named fields of the wall rows of :attr:`wall_set` within 2h
+        of the box [lo, hi]."""
         from decomposition.halo import proximity_halo
 
-        p = self.particles
+        p = self.wall_set
         n = p.n_owned
         halo = proximity_halo(self.comm, p["x"][:n], p["phase"][:n] == PHASE_WALL, self.radius,
                               lo, hi, self.box)

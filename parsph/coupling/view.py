@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from decomposition.halo import Halo, proximity_halo
-from parsph.scene.materials import PHASE_SOLID, PHASE_WALL
+from decomposition.halo import Halo
+from parsph.scene.materials import PHASE_SOLID
 from parsph.core.neighbours import build_csr
 from parsph.core.particles import ParticleSet
 from parsph.core.context import Context
@@ -34,16 +34,11 @@ class SolidContext(Context):
 
     main: Context = None
 
-    def _walls_near(self, names, lo, hi) -> dict:
-        """Collective: the wall rows of the main set within 2h of the box [lo, hi]. A
-        solid moves less than d in a coupled step (its speed bounds the step,
-        ``fluid.cfl <= 1``), so the lookup box of :meth:`Context.nearby_walls` serves
-        several steps."""
-        m = self.main.particles
-        n = m.n_owned
-        halo = proximity_halo(self.comm, m["x"][:n], m["phase"][:n] == PHASE_WALL,
-                              self.radius, lo, hi, self.box)
-        return halo.exchange(m.owned_fields(names), shift_fields=("x", "X"))
+    @property
+    def wall_set(self):
+        """The main set: the walls stay there (a solid moves less than d in a coupled
+        step, its speed bounding the step, so a lookup serves several steps)."""
+        return self.main.particles
 
 
 class SolidView:
