@@ -266,18 +266,16 @@ def viscous_apply(u, out, order, src, kind, coef, x, indptr, indices, dim):
         k = kind[i]
         ui0, ui1, ui2 = _vec(u, q, dim)
         o0, o1, o2 = ui0, ui1, ui2
-        if k != 3:
+        if k == 2:
+            o0, o1, o2 = _ghost_sum(o0, o1, o2, 1.0, u, src, coef, indptr, indices, i, dim)
+        elif k != 3:
             for p in range(indptr[i], indptr[i + 1]):
                 c = coef[p]
                 if c == 0.0:
                     continue
                 s = src[indices[p]]
                 uj0, uj1, uj2 = _vec(u, s, dim)
-                if k == 2:
-                    o0 += c * uj0
-                    o1 += c * uj1
-                    o2 += c * uj2
-                elif k == 1:
+                if k == 1:
                     o0 -= c * (ui0 - uj0)
                     o1 -= c * (ui1 - uj1)
                     o2 -= c * (ui2 - uj2)
@@ -318,16 +316,27 @@ def ghost_rows_exact(u, b, out, order, src, kind, coef, indptr, indices, dim):
         i = order[q]
         if kind[i] != 2:
             continue
-        o0, o1, o2 = _vec(b, q, dim)
-        for p in range(indptr[i], indptr[i + 1]):
-            c = coef[p]
-            if c == 0.0:
-                continue
-            uj0, uj1, uj2 = _vec(u, src[indices[p]], dim)
-            o0 -= c * uj0
-            o1 -= c * uj1
-            o2 -= c * uj2
+        b0, b1, b2 = _vec(b, q, dim)
+        o0, o1, o2 = _ghost_sum(b0, b1, b2, -1.0, u, src, coef, indptr, indices, i, dim)
         _store(out, q, dim, o0, o1, o2)
+
+
+@njit(cache=True, inline="always")
+def _ghost_sum(o0, o1, o2, sign, u, src, coef, indptr, indices, i, dim):
+    """``o + sign sum_f w_if u_f`` over the fluid partners of the ghost row of particle
+    ``i`` (``coef`` its weights, 0 for a pair left out; ``u`` laid out as in
+    :func:`viscous_apply`), summed in pair order: the ghost row of the operator
+    (``sign`` 1) and its exact solve (-1)."""
+    for p in range(indptr[i], indptr[i + 1]):
+        c = coef[p]
+        if c == 0.0:
+            continue
+        c = sign * c
+        uj0, uj1, uj2 = _vec(u, src[indices[p]], dim)
+        o0 += c * uj0
+        o1 += c * uj1
+        o2 += c * uj2
+    return o0, o1, o2
 
 
 @njit(cache=True, inline="always")
