@@ -96,8 +96,8 @@ def wave_speed(tab, material, pressure, porosity, sel, n, modulus):
 
 @njit(cache=True)
 def elastic_energy(tab, material, sel, n, vol, eps_e):
-    r"""Stored Hencky energy :math:`\sum V_0 (\mu\,\mathrm{dev}\,arepsilon :
-    \mathrm{dev}\,arepsilon + 	frac{K}{2} (\mathrm{tr}\,arepsilon)^2)` (J, or J/m in
+    r"""Stored Hencky energy :math:`\sum V_0 (\mu\,\mathrm{dev}\,\varepsilon :
+    \mathrm{dev}\,\varepsilon + \tfrac{K}{2} (\mathrm{tr}\,\varepsilon)^2)` (J, or J/m in
     2D) of the selected Hencky and Drucker-Prager rows, ``eps_e`` the elastic log strain
     (eq. (26)); Cam-Clay's pressure-dependent elasticity is left out."""
     total = 0.0
