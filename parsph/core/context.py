@@ -40,6 +40,10 @@ class Context:
     #: stage), whose kernels read a boundary row's neighbours only when the fluid touches
     #: it: a wall or solid row then gets its list only when a fluid row is within reach.
     wet_lists: bool = False
+    #: Fields the current-configuration halo does not carry (their halo rows are zero):
+    #: in the mixed layout the solid's state, which only the solid's view reads, on its
+    #: own reference halo (docs/performance.md).
+    halo_skip: tuple = ()
     restarted: bool = False
     out: str = ""
     materials: list = field(default_factory=list)

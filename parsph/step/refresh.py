@@ -222,7 +222,8 @@ def refresh(ctx, force_partition: bool = False) -> None:
         else:
             ctx.halo = Halo.build(ctx.comm, ctx.rcb, p[key][: p.n_owned], ctx.radius + ctx.skin,
                                   ctx.box)
-        p.set_halo(ctx.halo.exchange(p.owned_fields(), shift_fields=("x", "X")))
+        names = [k for k in p.data if k not in ctx.halo_skip]
+        p.set_halo(ctx.halo.exchange(p.owned_fields(names), shift_fields=("x", "X")))
 
     timed(ctx, "halo", halo)
 
