@@ -25,17 +25,73 @@ def sort_neighbours_by_row(indptr, indices, row, inplace=False):
 
 @njit(cache=True)
 def _sort_by_row(indptr, out, row):
-    """Insertion sort of each list of ``out`` by ``row`` (lists nearly sorted already)."""
-    for i in range(indptr.shape[0] - 1):
+    """Stable sort of each list of ``out`` by ``row``: a natural merge sort, one pass
+    per doubling of its ascending runs, with a scratch of the longest list (in L1).
+
+    A list is mostly in order, but not always in few moves: on the rank whose halo rows
+    hold lower global rows than its own (rank 1 of 2), a list by the cut is its owned
+    neighbours then its halo ones, and an insertion sort moved every halo entry past
+    every owned one. That rank's sort took 6.1 ms per step of a 3D tank of 112,761
+    particles where the other's took 3.0 ms (docs/scaling.md)."""
+    n = indptr.shape[0] - 1
+    longest = 0
+    for i in range(n):
+        longest = max(longest, indptr[i + 1] - indptr[i])
+    ka = np.empty(longest, dtype=row.dtype)
+    kb = np.empty(longest, dtype=row.dtype)
+    va = np.empty(longest, dtype=out.dtype)
+    vb = np.empty(longest, dtype=out.dtype)
+    for i in range(n):
         start, stop = indptr[i], indptr[i + 1]
+        length = stop - start
+        ordered = True
         for p in range(start + 1, stop):
-            j = out[p]
-            key = row[j]
-            q = p - 1
-            while q >= start and row[out[q]] > key:
-                out[q + 1] = out[q]
-                q -= 1
-            out[q + 1] = j
+            if row[out[p]] < row[out[p - 1]]:
+                ordered = False
+                break
+        if ordered:
+            continue
+        for q in range(length):
+            va[q] = out[start + q]
+            ka[q] = row[va[q]]
+        runs = 2
+        while runs > 1:  # merge neighbouring ascending runs of (ka, va) into (kb, vb)
+            runs = 0
+            q = 0
+            while q < length:
+                m = q + 1
+                while m < length and ka[m - 1] <= ka[m]:
+                    m += 1
+                r = m + 1 if m < length else m
+                while r < length and ka[r - 1] <= ka[r]:
+                    r += 1
+                a, b, t = q, m, q
+                while a < m and b < r:
+                    if ka[b] < ka[a]:  # ties from the left run: stable
+                        kb[t] = ka[b]
+                        vb[t] = va[b]
+                        b += 1
+                    else:
+                        kb[t] = ka[a]
+                        vb[t] = va[a]
+                        a += 1
+                    t += 1
+                while a < m:
+                    kb[t] = ka[a]
+                    vb[t] = va[a]
+                    a += 1
+                    t += 1
+                while b < r:
+                    kb[t] = ka[b]
+                    vb[t] = va[b]
+                    b += 1
+                    t += 1
+                runs += 1
+                q = r
+            ka, kb = kb, ka
+            va, vb = vb, va
+        for q in range(length):
+            out[start + q] = va[q]
 
 
 @njit(cache=True)

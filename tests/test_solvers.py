@@ -918,3 +918,29 @@ def test_operator_system_correct_solves_its_rows_exactly_after_the_amg(comm):
                 bv.destroy()
                 xv.destroy()
     assert iterations[True] <= iterations[False]
+
+
+def test_sort_neighbours_by_row_is_a_stable_sort_of_each_list():
+    """Each list sorted by the neighbours' rows, ties (periodic images: one row twice) in
+    their list order, as a stable argsort per list gives: sorted lists, lists of two
+    runs (owned neighbours, then halo ones of lower rows), random lists, empty lists."""
+    from solvers.csr import sort_neighbours_by_row
+
+    rng = np.random.default_rng(7)
+    for trial in range(60):
+        n_rows, n_points = int(rng.integers(1, 40)), int(rng.integers(1, 200))
+        lengths = rng.integers(0, 70, n_rows)
+        indptr = np.concatenate(([0], np.cumsum(lengths))).astype(np.int64)
+        row = rng.integers(-1, 30, n_points).astype(np.int64)  # repeats: ties
+        indices = rng.integers(0, n_points, indptr[-1]).astype(np.int32)
+        if trial % 3 == 1:  # two runs: high rows first, then low ones
+            row = np.arange(n_points, dtype=np.int64)[::-1].copy()
+            for i in range(n_rows):
+                a, b = indptr[i], indptr[i + 1]
+                indices[a:b] = np.sort(indices[a:b])
+        out = sort_neighbours_by_row(indptr, indices, row)
+        for i in range(n_rows):
+            a, b = indptr[i], indptr[i + 1]
+            want = indices[a:b][np.argsort(row[indices[a:b]], kind="stable")]
+            assert np.array_equal(out[a:b], want), (trial, i)
+        assert out.dtype == indices.dtype
