@@ -252,7 +252,9 @@ def test_a_solid_particle_whose_f_would_invert_fluidises(comm, mpi_tmp_path, flu
     assert failed >= 1
     n_solid1 = global_sum(comm, int((p["phase"][:n] == 0).sum()))
     assert n_solid1 <= n_solid0 - failed  # they (and any orphans) are fluid now
-    assert np.all(np.linalg.det(p["F"][:n][p["phase"][:n] == 0]) > 0.0)  # no inverted solid
+    with ctx.all_fields():  # F is the view's; put back in the main set for the check
+        assert np.all(np.linalg.det(p["F"][:n][p["phase"][:n] == 0]) > 0.0)  # none inverted
+    assert "F" not in p
     ctx.time += dt
     refresh(ctx)
     stage.after_refresh(ctx)
@@ -283,11 +285,20 @@ def test_phase_change_at_a_rank_boundary(comm, mpi_tmp_path):
     sp = view.ctx.particles
     # the TLSPH work fields live in the view only (its halo rows too), not the main set,
     # and the fluid's and the coupling's fields in the main set only
-    from parsph.coupling.stage import MAIN_ONLY
+    from parsph.coupling.stage import MAIN_ONLY, VIEW_STATE
 
     assert "L" not in ctx.particles and "Q" not in ctx.particles
     assert sp["L"].shape == sp["Q"].shape == (sp.n_total, 3, 3)
     assert all(k in ctx.particles and k not in sp for k in MAIN_ONLY)
+    # the solid's tensors too: the view alone holds them, the main set gets them back
+    # for a checkpoint or a probe sample (the view's values on its solid rows)
+    assert all(k in sp and k not in ctx.particles for k in VIEW_STATE)
+    with ctx.all_fields():
+        rows = view.rows
+        for k in VIEW_STATE:
+            np.testing.assert_array_equal(ctx.particles[k][rows], sp[k][: view.n])
+            assert not np.delete(ctx.particles[k], rows, axis=0).any()
+    assert not any(k in ctx.particles for k in VIEW_STATE)
     me, other = comm.rank, 1 - comm.rank
     # owned solids that the other rank holds in its reference halo and whose owner by
     # current position (the fluid partition) is the other rank

@@ -2,6 +2,7 @@
 partition, the time, and the collective look-ups of nearby walls."""
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -44,6 +45,10 @@ class Context:
     #: in the mixed layout the solid's state, which only the solid's view reads, on its
     #: own reference halo (docs/performance.md).
     halo_skip: tuple = ()
+    #: Set by a stage that holds part of the particles' state outside this set (the
+    #: coupled stage's solid view keeps the solid's tensors): puts it back in the set and
+    #: returns the names put back (see :meth:`all_fields`).
+    fields_outside: object = None
     restarted: bool = False
     out: str = ""
     materials: list = field(default_factory=list)
@@ -66,6 +71,18 @@ class Context:
     @property
     def n_owned(self) -> int:
         return self.particles.n_owned
+
+    @contextmanager
+    def all_fields(self):
+        """Every field of the particles' state in the set for the duration (a checkpoint,
+        a probe sample): what a stage holds outside it (:attr:`fields_outside`) is put
+        back, and taken out again after."""
+        names = self.fields_outside() if self.fields_outside is not None else ()
+        try:
+            yield
+        finally:
+            for name in names:
+                self.particles.data.pop(name, None)
 
     def update_halo(self, names) -> None:
         """Refresh the halo rows of the named fields from their owners (same pattern)."""

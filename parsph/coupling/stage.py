@@ -35,8 +35,14 @@ from parsph.scene.materials import PHASE_FLUID, PHASE_SOLID
 #: Fields the TLSPH step changes on solid rows (copied back to the main set each step).
 #: (``rho0`` and ``rho`` of solid rows in the main set are what the fluid sees; the
 #: solid's own rest density lives in the view.)
-SOLID_STATE = ("x", "v", "F", "tau", "eps_e", "P", "lapv", "p_c", "modulus",
-               "solid_init", "eps_p", "p", "porosity")
+SOLID_STATE = ("x", "v", "p_c", "modulus", "solid_init", "eps_p", "p", "porosity")
+
+#: The solid's tensors, which only the TLSPH step reads: held by the view alone, and put
+#: back in the main set (:meth:`Coupled.state_to_main`) only for a checkpoint, a probe
+#: sample, or while the solids migrate to a new partition. In the main set they cost
+#: 312 bytes on every row of every phase in 3D, and their copy back each step a pass
+#: over them (docs/performance.md).
+VIEW_STATE = ("F", "tau", "eps_e", "P", "lapv")
 
 #: Fields of the main set the solid's view does without: the fluid stage's and the
 #: coupling's own (the fluid's force on a solid is read from the main set). Copied into
@@ -96,6 +102,7 @@ class Coupled:
         self.stats_columns = tuple(self.solid.stats_columns) + tuple(self.fluid.stats_columns) \
             + ("n_coupled",) + STATS + tuple(f"fsi_force_{a}" for a in "xyz"[:ctx.dim])
         ctx.halo_skip = HALO_SKIP
+        ctx.fields_outside = self.state_to_main
         self.view = None
         self._stats = {k: 0.0 for k in STATS}
         self._fluid_any = False
@@ -103,13 +110,24 @@ class Coupled:
 
     # -- set-up ------------------------------------------------------------------
     def _build_view(self, ctx) -> None:
-        self.view = SolidView(ctx, MAIN_ONLY)
+        """The solid's view of the owned solid rows: its state from the main set, the
+        tensors of :data:`VIEW_STATE` from the last view where the main set has them not
+        (then they leave the main set)."""
+        self.view = SolidView(ctx, MAIN_ONLY, VIEW_STATE, self.view)
         sp, ns = self.view.ctx.particles, self.view.n
         count = np.diff(self.view.ctx.indptr).astype(np.int32)
         first = sp["ref_count0"][:ns] == 0
         sp["ref_count0"][:ns][first] = count[first]
         self.solid.setup(self.view.ctx)
         self.view.write_back(SOLID_STATE + ("ref_count0",))
+        for name in VIEW_STATE:
+            ctx.particles.data.pop(name, None)
+
+    def state_to_main(self) -> tuple:
+        """Put the tensors of :data:`VIEW_STATE` back in the main set (the view's values on
+        the owned solid rows; ``Context.fields_outside``); returns the names put back. The
+        next view build takes them out again."""
+        return self.view.state_to(VIEW_STATE) if self.view is not None else ()
 
     def _orphans(self) -> np.ndarray:
         """Main-set rows of the solids left with too small a share of their reference

@@ -53,7 +53,7 @@ class SolidView:
         Main-set row of each owned solid row (valid after :meth:`locate`).
     """
 
-    def __init__(self, ctx, main_only=()):
+    def __init__(self, ctx, main_only=(), carried=(), carry=None):
         p = ctx.particles
         n = p.n_owned
         self.main = ctx
@@ -61,6 +61,9 @@ class SolidView:
         # every field of the main set but ``main_only`` (the fluid's and the coupling's,
         # which TLSPH never reads), and the view's own
         fields = {k: a[:n][rows] for k, a in p.data.items() if k not in main_only}
+        missing = [k for k in carried if k not in fields]
+        if missing:  # the state only the last view held: taken over by id
+            fields.update(_take_over(carry, p["id"][:n][rows], missing))
         fields.update({k: np.zeros((rows.size,) + shape) for k, shape in VIEW_FIELDS.items()})
         sp = ParticleSet(ctx.dim, fields)
         halo = Halo.build(ctx.comm, ctx.rcb_ref, sp["X"][: sp.n_owned], ctx.radius, ctx.box)
@@ -73,6 +76,21 @@ class SolidView:
             materials=ctx.materials, time=ctx.time, step=ctx.step, main=ctx)
         self.ids = sp["id"][: sp.n_owned].copy()
         self.rows = rows
+        self._rows_max = int(rows.max()) if len(rows) else -1
+
+    def state_to(self, names) -> tuple:
+        """Put the named fields of the view back in the main set (owned solid rows; zero
+        on the other rows, halo included) where the main set lacks them; returns the
+        names put back."""
+        p, sp = self.main.particles, self.ctx.particles
+        added = tuple(k for k in names if k not in p)
+        if added:
+            self.locate()
+        for k in added:
+            a = np.zeros((p.n_total,) + sp[k].shape[1:], dtype=sp[k].dtype)
+            a[self.rows] = sp[k][: self.n]
+            p.data[k] = a
+        return added
 
     @property
     def n(self) -> int:
@@ -82,10 +100,16 @@ class SolidView:
         """Main-set rows of the solid rows after the main set was re-distributed.
 
         Solid rows never change rank (their owner follows X), but migration reorders
-        the main set; the rows are found again by global id.
+        the main set; the rows are found again by global id. When every row found last
+        time still holds its particle (a step without migration: one rank, or no row
+        moved) they are kept without the search (two sorts of the owned ids per step).
         """
         p = self.main.particles
         ids = p["id"][: p.n_owned]
+        rows = self.rows
+        if (len(rows) == len(self.ids) and (len(rows) == 0 or self._rows_max < len(ids))
+                and np.array_equal(ids[rows], self.ids)):
+            return
         order = np.argsort(ids, kind="stable")
         pos = np.searchsorted(ids[order], self.ids)
         pos = np.minimum(pos, max(len(order) - 1, 0))
@@ -94,6 +118,7 @@ class SolidView:
             raise RuntimeError("coupled layout: a solid row left its rank; solid rows are "
                                "owned by their reference position and must not migrate")
         self.rows = rows
+        self._rows_max = int(rows.max()) if len(rows) else -1
 
     def sync(self, names) -> None:
         """Copy the named fields of the owned solid rows: main set -> view."""
@@ -106,3 +131,20 @@ class SolidView:
         sp, p = self.ctx.particles, self.main.particles
         for k in names:
             p[k][self.rows] = sp[k][: self.n]
+
+
+def _take_over(old, ids, names) -> dict:
+    """The named fields of the owned rows ``ids`` from the view ``old``, which owns all of
+    them (a view rebuilt after a phase change owns the last one's solids less the
+    fluidised)."""
+    if old is None:
+        raise RuntimeError(f"solid view: fields {names} are in neither the main set nor a "
+                           "last view")
+    order = np.argsort(old.ids, kind="stable")
+    pos = order[np.minimum(np.searchsorted(old.ids[order], ids), max(len(order) - 1, 0))] \
+        if len(order) else np.zeros(0, dtype=np.int64)
+    if len(pos) != len(ids) or not np.array_equal(old.ids[pos], ids):
+        raise RuntimeError("solid view: a solid row of the new view was not in the last one; "
+                           "its state is lost (solid rows must not change rank between views)")
+    sp = old.ctx.particles
+    return {k: sp[k][: old.n][pos] for k in names}

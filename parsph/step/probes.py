@@ -407,7 +407,8 @@ class ProbeOutput:
         if not which:
             return
         t0 = time.perf_counter()
-        values = self.sampler.sample(ctx.comm, ctx.particles, which)
+        with ctx.all_fields():  # the solid's volume and stress (F, tau)
+            values = self.sampler.sample(ctx.comm, ctx.particles, which)
         for i, val in zip(which, values):
             it = self.sampler.items[i]
             if self.writer is not None:

@@ -125,6 +125,10 @@ def _distribute(ctx, force: bool = False) -> None:
         if force or ctx.rcb_ref is None or _unbalanced(counts[0], tolerance):
             ctx.solids_moved = ctx.rcb_ref is not None
             ctx.rcb_ref = RCB.build(comm, owned["X"][solid], ctx.box)
+            if ctx.solids_moved and ctx.fields_outside is not None:
+                # the state a stage holds outside the set migrates with its rows (the
+                # stage's next view takes it from the set)
+                owned.update(p.owned_fields(ctx.fields_outside()))
         n_fluid = int(counts[1].sum())
         rebuilt = force or to is None or (n_fluid and _unbalanced(counts[1], tolerance))
         if rebuilt:
