@@ -257,6 +257,20 @@ class MatrixAssembly:
         self._ksp.getPC().setUp()
         self.n_builds += 1
 
+    def release(self) -> None:
+        """Collective: free the matrix and the preconditioner set up on it (hypre's copy,
+        the AMG hierarchy) now, not at the next assembly; no solve before that."""
+        self._drop_product()
+        if self._mat is not None:
+            self._ksp.reset()
+            self._mat.destroy()
+            self._mat = None
+        if self._pmat is not None:
+            self._pmat.destroy()
+            self._pmat = None
+        self._held = self._pattern = None
+        self._pc_age = 0
+
     def assemble_csr_over(self, indptr, cols, values, same_unknowns: bool = False,
                           drop: float = 0.0) -> None:
         """Collective: :meth:`assemble_csr` with the matrix built over the caller's arrays.

@@ -137,6 +137,13 @@ class OperatorSystem(LinearSystem):
         :meth:`solvers.LinearSystem.assemble_csr`) BoomerAMG is set up on, afresh."""
         self.scalar.set_up_preconditioner_csr(indptr, cols, values)
 
+    def release_preconditioner(self) -> None:
+        """Collective: free the scalar matrix and its AMG hierarchy now (the next
+        :meth:`assemble_preconditioner` builds them afresh; no solve before it). Held
+        until then, they sat beside the pressure system's: a 3D coupled step's peak
+        memory held both (docs/performance.md)."""
+        self.scalar.release()
+
     def resize(self, n_local_rows: int) -> None:
         """Collective: the same system over a new number of rows (see
         :meth:`solvers.LinearSystem.resize`); the operator must be set again."""

@@ -300,6 +300,8 @@ class IISPH:
             visc.assemble_csr(ptr, cols[:nnz], vals[:nnz])
         t_asm = time.perf_counter() - t0
         vstar, info = visc.solve(rhs[order], x0=p["v"][:n][order])
+        if self.num.viscous_operator == "matrix_free":  # not held beside the PPE's
+            visc.release_preconditioner()
         full = np.zeros((n, dim))
         full[order] = vstar
         self.solid_viscous_dv = np.where((solid[:n] > 0)[:, None] & moved[:, None],
