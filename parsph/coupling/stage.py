@@ -52,10 +52,11 @@ MAIN_ONLY = ("nu", "v_star", "v_ghost", "free_surface", "wall_slip", "fluid_row"
 
 #: Fields of the main set no stage reads on its current-configuration halo rows: the
 #: solid's state (the TLSPH step reads it in the view, on the view's reference halo) and
-#: the coupling's per-row flags. 375 of a 3D row's 613 bytes; sent, they had been 40 % of
-#: the 2-rank halo exchange's time (docs/performance.md).
-HALO_SKIP = ("F", "tau", "eps_e", "P", "lapv", "X", "eps_p", "p_c", "porosity", "modulus",
-             "ref_count0", "solid_init", "fluidised")
+#: the coupling's per-row flags; with the tensors (in the main set while the solids
+#: migrate) 375 of a 3D row's 613 bytes, which had been 40 % of the 2-rank halo
+#: exchange's time (docs/performance.md).
+HALO_SKIP = VIEW_STATE + ("X", "eps_p", "p_c", "porosity", "modulus", "ref_count0",
+                          "solid_init", "fluidised")
 
 #: stats.csv columns of the coupling; ``fsi_force_*`` (N, N/m in 2D) is the net force of
 #: the fluid on the solid (eq. (45), pressure and viscous parts) before constraints.
