@@ -48,11 +48,14 @@ class _ComponentAMG:
         n, bs = s.n_local_rows, s.block_size
         B = b.getArray(readonly=True).reshape(n, bs)
         X = x.getArray().reshape(n, bs)
-        amg = inner.ksp.getPC()
-        for a in range(bs):
-            inner._b.getArray()[:] = B[:, a]
-            amg.apply(inner._b, inner._x)
-            X[:, a] = inner._x.getArray(readonly=True)
+        if s._inv_diag is not None:  # Jacobi (set_jacobi)
+            np.multiply(B, s._inv_diag[:, None], out=X)
+        else:
+            amg = inner.ksp.getPC()
+            for a in range(bs):
+                inner._b.getArray()[:] = B[:, a]
+                amg.apply(inner._b, inner._x)
+                X[:, a] = inner._x.getArray(readonly=True)
         if s._correct is not None:  # rows the caller solves exactly, given the others
             u = s._u
             u[:n] = X
@@ -89,7 +92,7 @@ class OperatorSystem(LinearSystem):
         pc.setPythonContext(_ComponentAMG(self))
         self._ksp.setPCSide(PETSc.PC.Side.RIGHT)
         self._ksp.setFromOptions()  # the options database still wins
-        self._apply = self._correct = None
+        self._apply = self._correct = self._inv_diag = None
         self._scatter = self._ghost_vec = self._ghost_is = None
         self._u = np.empty((0, self.block_size))
 
@@ -135,7 +138,18 @@ class OperatorSystem(LinearSystem):
     def assemble_preconditioner(self, indptr, cols, values) -> None:
         """Collective: the scalar matrix (one row per point, global point columns; see
         :meth:`solvers.LinearSystem.assemble_csr`) BoomerAMG is set up on, afresh."""
+        self._inv_diag = None
         self.scalar.set_up_preconditioner_csr(indptr, cols, values)
+
+    def set_jacobi(self, inverse_diagonal) -> None:
+        """Collective: precondition the next solves by Jacobi instead, ``x = b / d`` per
+        point and component (``inverse_diagonal``: ``1 / d``, one value per owned point;
+        then ``correct``, as after the AMG): no matrix, no set-up. For an operator close
+        to the identity (a viscous step at a small viscous number, whose rows are ``1 +
+        S`` on the diagonal and ``S`` off it: Jacobi's error falls by ``S / (1 + S)`` per
+        sweep), where an AMG set-up costs more than it saves."""
+        self.scalar.release()
+        self._inv_diag = np.ascontiguousarray(inverse_diagonal, dtype=np.float64)
 
     def release_preconditioner(self) -> None:
         """Collective: free the scalar matrix and its AMG hierarchy now (the next

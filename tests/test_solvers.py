@@ -859,6 +859,12 @@ def test_operator_system_matches_the_assembled_block_system(comm, n):
             _operator_problem(comm, system, n, coupling)
             x, _ = system.solve(b.reshape(-1, bs)[points])
             assert_matches(x, exact.reshape(-1, bs)[points])
+            # Jacobi instead of the AMG (no set-up): the same solution, more iterations
+            system.set_jacobi(np.full(points.size, 1.0 / 4.0))  # L's diagonal is 4
+            assert system.scalar._mat is None
+            x, info_j = system.solve(b.reshape(-1, bs)[points])
+            assert_matches(x, exact.reshape(-1, bs)[points])
+            assert info_j["iterations"] > info["iterations"]
 
 
 def test_operator_system_correct_solves_its_rows_exactly_after_the_amg(comm):

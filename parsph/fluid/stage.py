@@ -162,15 +162,11 @@ class IISPH:
 
             self.destroy()
             tol = dict(max_it=self.num.max_it)
-            # aggressive coarsening on the finest level (agg_nl 1): the same PPE
-            # iterations, 30 % cheaper V-cycles and set-ups (docs/solvers.md)
-            self._ppe = LinearSystem(ctx.comm, "ppe_", n, ksp_type="gmres",
-                                     rtol=self.num.ppe_rtol,
+            # PPE: agg_nl 1, 30 % cheaper V-cycles and set-ups (docs/solvers.md)
+            self._ppe = LinearSystem(ctx.comm, "ppe_", n, ksp_type="gmres", rtol=self.num.ppe_rtol,
                                      reuse_preconditioner=self.num.preconditioner_reuse,
                                      hypre_options=PPE_HYPRE_OPTIONS, **tol)
-            # the viscous matrix of a Bingham fluid changes too much from step to step (its
-            # viscosity follows the strain rate): a lagged set-up made the slope_failure
-            # demo's viscous solves 43 % slower, so it is set up afresh every step
+            # viscous: afresh every step (a lagged set-up: the slope demo's solves 43 % slower)
             if self.num.viscous_operator == "matrix_free":
                 from solvers import OperatorSystem
 
@@ -300,8 +296,8 @@ class IISPH:
             visc.assemble_csr(ptr, cols[:nnz], vals[:nnz])
         t_asm = time.perf_counter() - t0
         vstar, info = visc.solve(rhs[order], x0=p["v"][:n][order])
-        if self.num.viscous_operator == "matrix_free":  # not held beside the PPE's
-            visc.release_preconditioner()
+        if self.num.viscous_operator == "matrix_free":
+            visc.release_preconditioner()  # not held beside the PPE's
         full = np.zeros((n, dim))
         full[order] = vstar
         self.solid_viscous_dv = np.where((solid[:n] > 0)[:, None] & moved[:, None],
@@ -331,7 +327,10 @@ class IISPH:
             x, p["v"], m, p["rho"], p["nu"], fluid, solid, p["wall_slip"], row,
             indptr, indices, h, dim, dt, g, morris, first, ptr, cols, vals, coef, kind,
             self.num.viscous_preconditioner_reach * ctx.d)
-        visc.assemble_preconditioner(ptr, cols[:nnz], vals[:nnz])
+        if self._jacobi:  # a small viscous number: Jacobi, not an AMG set-up
+            visc.set_jacobi(unit_diagonal(ptr, cols[:nnz], vals[:nnz], first))
+        else:
+            visc.assemble_preconditioner(ptr, cols[:nnz], vals[:nnz])
         # where each local particle's unknowns sit in the operator's input: the owned rows
         # in row order, then the points of other ranks (halo particles in a row)
         src = np.full(len(row), -1, dtype=np.int64)
@@ -412,6 +411,7 @@ class IISPH:
         mode = self.num.viscous_solver
         explicit = not coupled and (mode == "explicit" or (
             mode == "auto" and zeta < self.num.explicit_viscous_number))
+        self._jacobi = zeta < self.num.explicit_viscous_number  # (docs/solvers.md)
         # an implicit step projects first unless the paper's order is asked for: with
         # nu dt / h^2 >> 1 the viscous predictor would carry part of the weight to a
         # no-slip wall through a non-solenoidal v* (docs/coupling.md)

@@ -98,7 +98,9 @@ class FluidNumerics:
     explicit_viscous_number: float = spec(0.01, doc="auto: largest nu dt / h^2 solved "
                                           "explicitly (water at the CFL step: ~1e-3; a Bingham "
                                           "fluid: 1e2 and more; forward Euler is stable below "
-                                          "~0.1)", gt=0.0, le=0.1)
+                                          "~0.1); an implicit (coupled) solve below it is "
+                                          "preconditioned by Jacobi, not BoomerAMG "
+                                          "(docs/solvers.md)", gt=0.0, le=0.1)
     clamp_negative_pressure: bool = spec(True, doc="set negative PPE pressures to 0 before the "
                                          "corrector (Koshizuka & Oka 1996)")
     ppe_rtol: float = spec(1e-8, doc="relative tolerance of the pressure solve (ppe_ksp_rtol)",
