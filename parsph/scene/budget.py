@@ -12,7 +12,7 @@ BASE_BYTES = {2: 100 + 4 * 24 + 40, 3: 120 + 4 * 70 + 40}
 #: iisph: its fields, both systems' scalar matrices with their hypre copies and AMG
 #: hierarchies, the viscous pairs' coefficients. coupled: the same with the solid's view
 #: and TLSPH's pairs: a 3D coupled tank rose by 2.95 kB per particle in all at 1.1e5
-#: particles on one rank and 3.31 kB at 1.0e6 on two (3.74 kB at 5.1e6 before the solid's
+#: particles on one rank and 3.15 kB at 1.0e6 on two (3.74 kB at 5.1e6 before the solid's
 #: tensors left the main set)
 #: (jobs/bench_memory.py, docs/benchmarks.md). 2D (~24 neighbours against ~57) is taken at
 #: the same figures, an upper bound.
