@@ -75,7 +75,9 @@ class OperatorSystem(LinearSystem):
     prefix ``{prefix}amg_`` (e.g. ``-visc_amg_pc_hypre_boomeramg_strong_threshold 0.5``).
 
     Use: :meth:`set_operator` with the callback and the points of other ranks it reads,
-    :meth:`assemble_preconditioner` with the scalar matrix, then :meth:`solve`.
+    :meth:`assemble_preconditioner` with the scalar matrix (or :meth:`set_jacobi` with its
+    inverse diagonal, for an operator close to the identity), then :meth:`solve`;
+    :meth:`release_preconditioner` frees the AMG set-up when it will not be reused.
     """
 
     def __init__(self, comm, prefix, n_local_rows, block_size, ksp_type="gmres",
