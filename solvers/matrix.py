@@ -240,18 +240,11 @@ class MatrixAssembly:
         ValueError, SolverError
             On every rank, as :meth:`assemble_csr`.
         """
-        PETSc = self._PETSc
         arrays = self._csr_arrays(indptr, cols, values)
         agree(self.comm, self._check_csr(*arrays), 0)
-        if self._mat is not None:  # the last matrix and its hierarchy go first
-            self._ksp.reset()
-            self._mat.destroy()
-            self._mat = None
+        self.release()  # the last matrix and its hierarchy go first
         mat = self._hypre_over(*arrays)
         self._mat = mat
-        self._pattern = None
-        self._held = None
-        self._pc_age = 0
         self._ksp.getPC().setReusePreconditioner(False)
         self._ksp.setOperators(mat)
         self._ksp.getPC().setUp()

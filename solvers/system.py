@@ -237,17 +237,7 @@ class LinearSystem(MatrixAssembly):
             On every rank, as the constructor (negative rows, no rows anywhere, too many
             for 32-bit indices).
         """
-        if self._mat is not None:
-            self._drop_product()
-            self._ksp.reset()
-            self._mat.destroy()
-            self._mat = None
-        if self._pmat is not None:
-            self._pmat.destroy()
-            self._pmat = None
-        self._pattern = None
-        self._held = None
-        self._pc_age = 0
+        self.release()
         self._set_sizes(n_local_rows)
         self._create_vectors()
         if self.block_size > 1:

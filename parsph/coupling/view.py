@@ -110,11 +110,8 @@ class SolidView:
         if (len(rows) == len(self.ids) and (len(rows) == 0 or self._rows_max < len(ids))
                 and np.array_equal(ids[rows], self.ids)):
             return
-        order = np.argsort(ids, kind="stable")
-        pos = np.searchsorted(ids[order], self.ids)
-        pos = np.minimum(pos, max(len(order) - 1, 0))
-        rows = order[pos] if len(order) else np.zeros(0, dtype=np.int64)
-        if len(rows) != len(self.ids) or not np.array_equal(ids[rows], self.ids):
+        rows = _rows_of(ids, self.ids)
+        if rows is None:
             raise RuntimeError("coupled layout: a solid row left its rank; solid rows are "
                                "owned by their reference position and must not migrate")
         self.rows = rows
@@ -140,11 +137,20 @@ def _take_over(old, ids, names) -> dict:
     if old is None:
         raise RuntimeError(f"solid view: fields {names} are in neither the main set nor a "
                            "last view")
-    order = np.argsort(old.ids, kind="stable")
-    pos = order[np.minimum(np.searchsorted(old.ids[order], ids), max(len(order) - 1, 0))] \
-        if len(order) else np.zeros(0, dtype=np.int64)
-    if len(pos) != len(ids) or not np.array_equal(old.ids[pos], ids):
+    pos = _rows_of(old.ids, ids)
+    if pos is None:
         raise RuntimeError("solid view: a solid row of the new view was not in the last one; "
                            "its state is lost (solid rows must not change rank between views)")
     sp = old.ctx.particles
     return {k: sp[k][: old.n][pos] for k in names}
+
+
+def _rows_of(ids, wanted):
+    """Row of each of the ids ``wanted`` in ``ids`` (distinct), or None if one is
+    missing."""
+    order = np.argsort(ids, kind="stable")
+    rows = order[np.minimum(np.searchsorted(ids[order], wanted), max(len(order) - 1, 0))] \
+        if len(order) else np.zeros(0, dtype=np.int64)
+    if len(rows) != len(wanted) or not np.array_equal(ids[rows], wanted):
+        return None
+    return rows
