@@ -234,17 +234,22 @@ def test_matrix_free_viscous_operator_is_the_assembled_matrix(dim, morris):
     fluid, solid, rowv = args[5], args[6], args[8]
     A, rhs = dense_system(viscous.viscous_csr, *args, morris, n_points=n_rows, dim=dim)
     n = len(row)
-    coef = np.full(indices.size, np.nan)
+    order = np.argsort(np.where(row >= 0, row, n))[:n_rows]
+    # coefficients for the rows that can have pairs only: not the identity rows
+    at = np.full(n, -10 ** 9, dtype=np.int64)
+    size = viscous.pair_offsets(order, fluid, solid, args[7], indptr, indices, at)
+    coef = np.full(size, np.nan)
     kind = np.full(n, 3, dtype=np.int8)
     S, rhs_s = dense_system(viscous.viscous_pairs, *args, morris, n_points=n_rows,
-                            tail=(coef, kind, 0.0),
+                            tail=(coef, at, kind, 0.0),
                             capacity=assembly.csr_capacity(fluid, solid, rowv, indptr, 1, False))
     np.testing.assert_array_equal(rhs_s, rhs)
-    order = np.argsort(np.where(row >= 0, row, n))[:n_rows]
+    assert size < indices.size and not np.isnan(coef).any()
+    assert np.all(at[order][kind[order] == 3] == -10 ** 9)
     src = row.copy()  # one rank: every point's unknowns are its row's
     u = np.random.default_rng(2).normal(size=(n_rows, dim))
     out = np.empty((n_rows, dim))
-    viscous.viscous_apply(u, out, order, src, kind, coef, x, indptr, indices, dim)
+    viscous.viscous_apply(u, out, order, src, kind, coef, at, x, indptr, indices, dim)
     expected = (A @ u.reshape(-1)).reshape(n_rows, dim)
     assert np.abs(out - expected).max() <= 1e-12 * np.abs(expected).max()
     assert set(kind[order]) == {1 if morris else 0, 2, 3}
@@ -257,10 +262,10 @@ def test_matrix_free_viscous_operator_is_the_assembled_matrix(dim, morris):
     # matrix. A moving row keeps its pairs closer than the reach, as they were, and
     # drops the others with their share of the diagonal: its row sum stays 1.
     d = 0.1  # the set's particle size
-    coef_r = np.full(indices.size, np.nan)
+    coef_r = np.full(size, np.nan)
     kind_r = np.full(n, 3, dtype=np.int8)
     S_r, rhs_r = dense_system(viscous.viscous_pairs, *args, morris, n_points=n_rows,
-                              tail=(coef_r, kind_r, 1.5 * d),
+                              tail=(coef_r, at, kind_r, 1.5 * d),
                               capacity=assembly.csr_capacity(fluid, solid, rowv, indptr, 1,
                                                              False))
     np.testing.assert_array_equal(coef_r, coef)

@@ -42,8 +42,7 @@ from parsph.scene.materials import PHASE_FLUID, PHASE_WALL
 from solvers.csr import scale_rows, sort_neighbours_by_row, unit_diagonal
 
 #: BoomerAMG defaults of the PPE beyond every system's smoother (``-ppe_pc_hypre_boomeramg_
-#: agg_nl 0`` undoes it). The viscous system keeps plain coarsening: its Bingham viscosity
-#: varies by orders of magnitude; the slope_failure demo's viscous solves gained nothing.
+#: agg_nl 0`` undoes it). The viscous system keeps plain coarsening (the demo gained nothing).
 PPE_HYPRE_OPTIONS = {"pc_hypre_boomeramg_agg_nl": "1"}
 
 STATS = ("viscous_number", "visc_iterations", "visc_residual", "ppe_iterations", "ppe_residual",
@@ -309,23 +308,24 @@ class IISPH:
     def _viscous_operator(self, ctx, visc, order, dt, g, morris, m, row, indptr, indices,
                           fluid, solid):
         """Collective: the matrix-free viscous system (:class:`solvers.OperatorSystem`):
-        one coefficient per neighbour pair and the scalar preconditioner matrix from
-        :func:`viscous.viscous_pairs`, the operator :func:`viscous.viscous_apply` on them.
-        Returns the right-hand side (owned particles, shape (n, dim))."""
+        a coefficient per pair of the rows with pairs (:func:`viscous.pair_offsets`) and
+        the scalar preconditioner matrix from :func:`viscous.viscous_pairs`, the operator
+        :func:`viscous.viscous_apply` on them. Returns the right-hand side (owned, (n, dim))."""
         p, n, dim, h = ctx.particles, ctx.n_owned, ctx.dim, ctx.h
         first = visc.offset // dim
         ptr, cols, vals = self._csr_buffers(visc.scalar, assembly.csr_capacity(
             fluid, solid, row, indptr, 1, False))
+        at = np.zeros(n, dtype=np.int64)
+        size = viscous.pair_offsets(order, fluid, solid, p["wall_slip"], indptr, indices, at)
         coef = self._buffers.get("visc_coef")
-        if coef is None or coef.size < indices.size:
-            coef = np.empty(int(1.25 * indices.size) + 1)
-            self._buffers["visc_coef"] = coef
-        coef = coef[:indices.size]
+        if coef is None or coef.size < size:
+            coef = self._buffers["visc_coef"] = np.empty(int(1.1 * size) + 1)
+        coef = coef[:size]
         kind = np.full(n, 3, dtype=np.int8)
         x = p["x"]
         nnz, rhs = viscous.viscous_pairs(
             x, p["v"], m, p["rho"], p["nu"], fluid, solid, p["wall_slip"], row,
-            indptr, indices, h, dim, dt, g, morris, first, ptr, cols, vals, coef, kind,
+            indptr, indices, h, dim, dt, g, morris, first, ptr, cols, vals, coef, at, kind,
             self.num.viscous_preconditioner_reach * ctx.d)
         if self._jacobi:  # a small viscous number: Jacobi, not an AMG set-up
             visc.set_jacobi(unit_diagonal(ptr, cols[:nnz], vals[:nnz], first))
@@ -337,7 +337,7 @@ class IISPH:
         src[order] = np.arange(order.size)
         halo = np.flatnonzero(row[n:] >= 0) + n
         src[halo] = order.size + np.arange(halo.size)
-        visc.set_operator(*viscous.operator_callbacks(order, src, kind, coef, x, indptr,
+        visc.set_operator(*viscous.operator_callbacks(order, src, kind, coef, at, x, indptr,
                                                       indices, dim, row[halo]))
         return rhs
 

@@ -31,7 +31,8 @@ from numba import njit
 from parsph.core.kernel import constants, delta, fac_grad_k, w_k
 from parsph.fluid.assembly import _store, _vec, fluid_weight_sum, rows_in_order
 
-__all__ = ["viscous_csr", "viscous_pairs", "viscous_apply", "viscous_explicit", "ghost_velocity"]
+__all__ = ["viscous_csr", "viscous_pairs", "pair_offsets", "viscous_apply", "viscous_explicit",
+           "ghost_velocity"]
 
 #: eta^2 / h^2 of the viscous term (avoids 1/r^2 blowing up for coincident particles).
 ETA2 = 0.01
@@ -92,15 +93,39 @@ def _viscous_pair(m, rho, nu, fluid, i, j, r2, k, dim, dt, eta2, morris):
 
 @njit(cache=True)
 def viscous_pairs(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, dim, dt,
-                  g, morris, first, out_ptr, out_cols, out_vals, coef, kind, reach):
+                  g, morris, first, out_ptr, out_cols, out_vals, coef, at, kind, reach):
     """The matrix-free form of :func:`viscous_csr`: the scalar preconditioner matrix (one
-    row per point), each pair's coefficient in ``coef`` and each row's form in ``kind``
-    (see there) for :func:`viscous_apply`. The preconditioner's moving rows keep the
-    pairs closer than ``reach`` (m; 0: all), see :func:`_viscous_rows`. Returns
-    ``(nnz, rhs)``."""
+    row per point), each pair's coefficient in ``coef`` (pair ``p`` of particle ``i`` at
+    ``at[i] + p``, :func:`pair_offsets`) and each row's form in ``kind`` (see there) for
+    :func:`viscous_apply`. The preconditioner's moving rows keep the pairs closer than
+    ``reach`` (m; 0: all), see :func:`_viscous_rows`. Returns ``(nnz, rhs)``."""
     return _viscous_rows(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, dim,
-                         dt, g, morris, first, out_ptr, out_cols, out_vals, True, coef, kind,
-                         reach * reach if reach > 0.0 else np.inf)
+                         dt, g, morris, first, out_ptr, out_cols, out_vals, True, coef, at,
+                         kind, reach * reach if reach > 0.0 else np.inf)
+
+
+@njit(cache=True)
+def pair_offsets(order, fluid, solid, slip, indptr, indices, at):
+    """Where :func:`viscous_pairs` puts the pair coefficients of the rows ``order`` (local
+    particles): pair ``p`` of particle ``i`` (its neighbour list entry) at ``coef[at[i] +
+    p]``, the rows that can have pairs one after another: the moving ones (fluid, solid
+    > 0) and the no-slip walls with a fluid neighbour. Writes ``at`` (one per owned
+    particle; that of the other rows is left as it was) and returns the number of
+    coefficients. One per pair of every list had been 257 bytes per particle in the 3D
+    tank of ``jobs/bench_memory.py``, whose type-I solids and dry walls have none."""
+    k = 0
+    for q in range(order.shape[0]):
+        i = order[q]
+        need = fluid[i] or solid[i] > 0.0
+        if not need and not slip[i]:
+            for p in range(indptr[i], indptr[i + 1]):
+                if fluid[indices[p]]:
+                    need = True
+                    break
+        if need:
+            at[i] = k - indptr[i]
+            k += indptr[i + 1] - indptr[i]
+    return k
 
 
 @njit(cache=True)
@@ -110,12 +135,14 @@ def viscous_csr(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, d
     :func:`_viscous_rows`. Returns ``(nnz, rhs)``."""
     return _viscous_rows(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, dim,
                          dt, g, morris, first, out_ptr, out_cols, out_vals, False,
-                         np.empty(0), np.empty(0, dtype=np.int8), np.inf)
+                         np.empty(0), np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int8),
+                         np.inf)
 
 
 @njit(cache=True)
 def _viscous_rows(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, dim, dt,
-                  g, morris, first, out_ptr, out_cols, out_vals, scalar, coef, kind, reach2):
+                  g, morris, first, out_ptr, out_cols, out_vals, scalar, coef, at, kind,
+                  reach2):
     """CSR block and right-hand side of the implicit viscous predictor (30)/(34).
 
     Writes the owned scalar rows (block size ``dim``: component ``a`` of global point
@@ -144,7 +171,7 @@ def _viscous_rows(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h,
     Matrix-free use (:func:`viscous_pairs`, :func:`viscous_apply`): with ``scalar`` the block writes one scalar
     row per point (columns ``P``) whose pair entries are the blocks' traces over ``dim``,
     ``c r^2 / dim`` (the preconditioner's scalar Laplacian, one matrix for every
-    component); ``coef`` (one per neighbour pair, as ``indices``) receives each pair's
+    component); ``coef`` (pair ``p`` of particle ``i`` at ``at[i] + p``) receives each pair's
     coefficient (``c``; ``W_wf / sum W`` of a no-slip wall row; 0 for a pair left out) and
     ``kind`` (one per owned particle) the row's form: 0 the blocks ``c r r^T`` of eq.
     (34), 1 Morris's ``c I``, 2 a no-slip ghost row, 3 an identity row. A scalar moving
@@ -171,10 +198,13 @@ def _viscous_rows(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h,
             wsum = fluid_weight_sum(x, fluid, indptr, indices, i, h, dim)
         ghost = wsum > 0.0
         bw = dim if moving and not morris and not scalar else 1
+        c0 = 0
         if pairs:
             kind[i] = (1 if morris else 0) if moving else (2 if ghost else 3)
-            for p in range(indptr[i], indptr[i + 1]):
-                coef[p] = 0.0
+            if moving or ghost:
+                c0 = at[i]
+                for p in range(indptr[i], indptr[i + 1]):
+                    coef[c0 + p] = 0.0
         span = (indptr[i + 1] - indptr[i] + 1) * bw
         base = k
         t = 0
@@ -209,7 +239,7 @@ def _viscous_rows(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h,
                         * (1.0 if fluid[i] else solid[i])
                     if scalar and r2 >= reach2:  # the operator's pair, not the matrix's
                         if pairs:
-                            coef[p] = c
+                            coef[c0 + p] = c
                         continue
                 if dslot < 0 and rj >= ri:
                     dslot, t, last = _slot(out_cols, out_vals, base, span, bw, nd, t, last, ri)
@@ -217,12 +247,12 @@ def _viscous_rows(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h,
                 if ghost:
                     wij = w_k(math.sqrt(r2), kc) / wsum
                     if pairs:
-                        coef[p] = wij
+                        coef[c0 + p] = wij
                     for a in range(nd):
                         out_vals[base + a * span + s] += wij
                     continue
                 if pairs:  # a moving row (the ghost rows went on above)
-                    coef[p] = c
+                    coef[c0 + p] = c
                 if morris or scalar:
                     cs = c if morris else c * r2 / dim  # the block's trace over dim
                     e00 -= cs
@@ -250,13 +280,14 @@ def _viscous_rows(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h,
 
 
 @njit(cache=True)
-def viscous_apply(u, out, order, src, kind, coef, x, indptr, indices, dim):
+def viscous_apply(u, out, order, src, kind, coef, at, x, indptr, indices, dim):
     """The operator of :func:`viscous_csr` applied to ``u``, pair by pair: ``out = A u``.
 
     ``u`` holds the unknowns of the owned rows (row ``q``, shape (n_rows, dim)) followed
     by those of the other points the rows reach (from other ranks); ``src[j]`` is the
     position in ``u`` of local particle ``j`` (-1 if it is in no row). ``order[q]`` is the
-    local particle of row ``q``; ``kind`` and ``coef`` come from :func:`viscous_csr`. Row
+    local particle of row ``q``; ``kind``, ``coef`` and ``at`` come from
+    :func:`viscous_pairs`. Row
     ``q`` of particle ``i`` is ``u_i - sum_j c r r^T (u_i - u_j)`` (kind 0, eq. (34)),
     ``u_i - sum_j c (u_i - u_j)`` (1, Morris), ``u_i + sum_f w_if u_f`` (2, no-slip
     ghost) or ``u_i`` (3): the assembled block's row without its nine entries per pair.
@@ -267,10 +298,12 @@ def viscous_apply(u, out, order, src, kind, coef, x, indptr, indices, dim):
         ui0, ui1, ui2 = _vec(u, q, dim)
         o0, o1, o2 = ui0, ui1, ui2
         if k == 2:
-            o0, o1, o2 = _ghost_sum(o0, o1, o2, 1.0, u, src, coef, indptr, indices, i, dim)
+            o0, o1, o2 = _ghost_sum(o0, o1, o2, 1.0, u, src, coef, at[i], indptr, indices, i,
+                                    dim)
         elif k != 3:
+            c0 = at[i]
             for p in range(indptr[i], indptr[i + 1]):
-                c = coef[p]
+                c = coef[c0 + p]
                 if c == 0.0:
                     continue
                 s = src[indices[p]]
@@ -288,22 +321,22 @@ def viscous_apply(u, out, order, src, kind, coef, x, indptr, indices, dim):
         _store(out, q, dim, o0, o1, o2)
 
 
-def operator_callbacks(order, src, kind, coef, x, indptr, indices, dim, ghost_points):
+def operator_callbacks(order, src, kind, coef, at, x, indptr, indices, dim, ghost_points):
     """The arguments of :meth:`solvers.OperatorSystem.set_operator` for the pairs of
     :func:`viscous_pairs`: the operator (:func:`viscous_apply`), the other ranks' points
     it reads, and the ghost rows solved exactly after each AMG application
     (:func:`ghost_rows_exact`)."""
     def apply(u, out):
-        viscous_apply(u, out, order, src, kind, coef, x, indptr, indices, dim)
+        viscous_apply(u, out, order, src, kind, coef, at, x, indptr, indices, dim)
 
     def correct(u, b, out):
-        ghost_rows_exact(u, b, out, order, src, kind, coef, indptr, indices, dim)
+        ghost_rows_exact(u, b, out, order, src, kind, coef, at, indptr, indices, dim)
 
     return apply, ghost_points, correct
 
 
 @njit(cache=True)
-def ghost_rows_exact(u, b, out, order, src, kind, coef, indptr, indices, dim):
+def ghost_rows_exact(u, b, out, order, src, kind, coef, at, indptr, indices, dim):
     """The no-slip ghost rows (kind 2) of :func:`viscous_apply` solved exactly for the
     fluid's values in ``u`` (laid out as there): ``out[q] = b[q] - sum_f w_qf u_f``.
 
@@ -317,18 +350,19 @@ def ghost_rows_exact(u, b, out, order, src, kind, coef, indptr, indices, dim):
         if kind[i] != 2:
             continue
         b0, b1, b2 = _vec(b, q, dim)
-        o0, o1, o2 = _ghost_sum(b0, b1, b2, -1.0, u, src, coef, indptr, indices, i, dim)
+        o0, o1, o2 = _ghost_sum(b0, b1, b2, -1.0, u, src, coef, at[i], indptr, indices, i,
+                                dim)
         _store(out, q, dim, o0, o1, o2)
 
 
 @njit(cache=True, inline="always")
-def _ghost_sum(o0, o1, o2, sign, u, src, coef, indptr, indices, i, dim):
+def _ghost_sum(o0, o1, o2, sign, u, src, coef, c0, indptr, indices, i, dim):
     """``o + sign sum_f w_if u_f`` over the fluid partners of the ghost row of particle
-    ``i`` (``coef`` its weights, 0 for a pair left out; ``u`` laid out as in
+    ``i`` (``coef[c0 + p]`` its weights, 0 for a pair left out; ``u`` laid out as in
     :func:`viscous_apply`), summed in pair order: the ghost row of the operator
     (``sign`` 1) and its exact solve (-1)."""
     for p in range(indptr[i], indptr[i + 1]):
-        c = coef[p]
+        c = coef[c0 + p]
         if c == 0.0:
             continue
         c = sign * c
