@@ -17,6 +17,13 @@ import numpy as np
 
 from solvers.system import LinearSystem
 
+#: GMRES restart of the solves :meth:`OperatorSystem.set_jacobi` preconditions (unless an
+#: ``-{prefix}ksp_gmres_restart`` option is given). Their operator is close to the identity
+#: and they take 2-4 iterations, but PETSc allocates GMRES's directions ten at a time: a
+#: third iteration held 15 vectors of the system, 226 bytes per particle in the 3D tank of
+#: ``jobs/bench_memory.py``, 118 with this restart (docs/performance.md).
+JACOBI_RESTART = 3
+
 
 class _Operator:
     """Context of the PETSc Python matrix: ``y = A x`` through the caller's callback."""
@@ -94,6 +101,9 @@ class OperatorSystem(LinearSystem):
         pc.setPythonContext(_ComponentAMG(self))
         self._ksp.setPCSide(PETSc.PC.Side.RIGHT)
         self._ksp.setFromOptions()  # the options database still wins
+        opts = self._PETSc.Options()
+        self._restart = None if self._ksp.getType() != "gmres" or opts.hasName(
+            self.prefix + "ksp_gmres_restart") else 30  # PETSc's default
         self._apply = self._correct = self._inv_diag = None
         self._scatter = self._ghost_vec = self._ghost_is = None
         self._u = np.empty((0, self.block_size))
@@ -141,6 +151,7 @@ class OperatorSystem(LinearSystem):
         """Collective: the scalar matrix (one row per point, global point columns; see
         :meth:`solvers.LinearSystem.assemble_csr`) BoomerAMG is set up on, afresh."""
         self._inv_diag = None
+        self._set_restart(30)
         self.scalar.set_up_preconditioner_csr(indptr, cols, values)
 
     def set_jacobi(self, inverse_diagonal) -> None:
@@ -151,7 +162,15 @@ class OperatorSystem(LinearSystem):
         S`` on the diagonal and ``S`` off it: Jacobi's error falls by ``S / (1 + S)`` per
         sweep), where an AMG set-up costs more than it saves."""
         self.scalar.release()
+        self._set_restart(JACOBI_RESTART)
         self._inv_diag = np.ascontiguousarray(inverse_diagonal, dtype=np.float64)
+
+    def _set_restart(self, k: int) -> None:
+        """GMRES's restart for the next solves (PETSc frees its vectors on a change), unless
+        the method is not GMRES or the options database sets the restart."""
+        if self._restart is not None and self._restart != k:
+            self._ksp.setGMRESRestart(k)
+            self._restart = k
 
     def release_preconditioner(self) -> None:
         """Collective: free the scalar matrix and its AMG hierarchy now (the next

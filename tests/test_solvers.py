@@ -804,10 +804,10 @@ def test_product_operator_with_scaled_rows_solves_the_unscaled_system(comm):
         assert_matches(x, reference[first:stop])
 
 
-def _operator_problem(comm, system, n, coupling):
+def _operator_problem(comm, system, n, coupling, eps=None):
     """Give ``system`` (an OperatorSystem over this rank's points of an ``n`` x ``n`` grid)
-    the operator kron(L, coupling) applied matrix-free and L as its preconditioner
-    matrix; returns the owned points."""
+    the operator kron(L, coupling) (with ``eps``: I + eps kron(L, coupling)) applied
+    matrix-free and L as its preconditioner matrix; returns the owned points."""
     bs = coupling.shape[0]
     first, stop = system.offset // bs, system.offset // bs + system.n_local_rows
     points = np.arange(first, stop)
@@ -821,6 +821,9 @@ def _operator_problem(comm, system, n, coupling):
 
     def apply(u, out):
         out[:] = (local @ u) @ coupling.T
+        if eps is not None:
+            out *= eps
+            out += u[:points.size]
 
     system.set_operator(apply, ghosts)
     L = sp.csr_matrix((vals, (rows - first, cols)), shape=(points.size, n * n))
@@ -830,11 +833,12 @@ def _operator_problem(comm, system, n, coupling):
 
 
 @pytest.mark.parametrize("n", [16, 24])
-def test_operator_system_matches_the_assembled_block_system(comm, n):
+def test_operator_system_matches_the_assembled_block_system(comm, n, capfd):
     """A block operator applied matrix-free (the other ranks' unknowns by the system's
     scatter), preconditioned by BoomerAMG on a scalar matrix per component, solves
     kron(L, C) as the direct solve does; after a resize to other rows it solves again."""
     from solvers import OperatorSystem
+    from solvers.operator import JACOBI_RESTART
 
     bs = 2
     coupling = np.array([[2.0, -0.6], [0.3, 1.5]])
@@ -859,12 +863,22 @@ def test_operator_system_matches_the_assembled_block_system(comm, n):
             _operator_problem(comm, system, n, coupling)
             x, _ = system.solve(b.reshape(-1, bs)[points])
             assert_matches(x, exact.reshape(-1, bs)[points])
-            # Jacobi instead of the AMG (no set-up): the same solution, more iterations
-            system.set_jacobi(np.full(points.size, 1.0 / 4.0))  # L's diagonal is 4
-            assert system.scalar._mat is None
+            assert system._restart == 30  # an AMG set-up: PETSc's GMRES restart
+            # Jacobi instead of the AMG (no set-up) for an operator close to the identity
+            # (a viscous step at a small viscous number), GMRES restarted every
+            # JACOBI_RESTART iterations; the next AMG set-up (next pass) restores 30
+            eps = 0.02
+            _operator_problem(comm, system, n, coupling, eps)
+            system.set_jacobi(np.full(points.size, 1.0 / (1.0 + 4.0 * eps)))
+            assert system.scalar._mat is None and system._restart == JACOBI_RESTART
+            near = (sp.identity(bs * n * n) + eps * full).tocsc()
             x, info_j = system.solve(b.reshape(-1, bs)[points])
-            assert_matches(x, exact.reshape(-1, bs)[points])
-            assert info_j["iterations"] > info["iterations"]
+            assert_matches(x, spla.spsolve(near, b).reshape(-1, bs)[points])
+            assert info_j["iterations"] > JACOBI_RESTART  # (past a restart)
+            capfd.readouterr()
+            system.ksp.view()  # PETSc's own account (rank 0 prints it)
+            if comm.rank == 0:
+                assert f"restart={JACOBI_RESTART}," in capfd.readouterr().out
 
 
 def test_operator_system_correct_solves_its_rows_exactly_after_the_amg(comm):
