@@ -46,9 +46,11 @@ class Context:
     #: own reference halo (docs/performance.md).
     halo_skip: tuple = ()
     #: Set by a stage that holds part of the particles' state outside this set (the
-    #: coupled stage's solid view keeps the solid's tensors): puts it back in the set and
-    #: returns the names put back (see :meth:`all_fields`).
+    #: coupled stage's solid view keeps the solid's tensors): ``fields_outside(names=None)``
+    #: puts those named (None: all) back in the set and returns the names put back (see
+    #: :meth:`all_fields`); ``outside_names`` names them all.
     fields_outside: object = None
+    outside_names: tuple = ()
     restarted: bool = False
     out: str = ""
     materials: list = field(default_factory=list)
@@ -83,6 +85,20 @@ class Context:
         finally:
             for name in names:
                 self.particles.data.pop(name, None)
+
+    def fields_one_at_a_time(self):
+        """Yields ``(name, owned rows)`` of each field a stage holds outside the set, each
+        in the set for its own turn only: a checkpoint writes the solid's tensors so. All
+        at once (:meth:`all_fields`) they had been the peak of a 3D coupled run (312 bytes
+        per particle beside the step's own arrays, docs/performance.md)."""
+        for name in self.outside_names:
+            added = self.fields_outside((name,))
+            try:
+                if name in added:  # (not if the set has it already)
+                    yield name, self.particles[name][: self.n_owned]
+            finally:
+                for k in added:
+                    self.particles.data.pop(k, None)
 
     def update_halo(self, names) -> None:
         """Refresh the halo rows of the named fields from their owners (same pattern)."""

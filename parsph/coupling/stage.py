@@ -103,7 +103,7 @@ class Coupled:
         self.stats_columns = tuple(self.solid.stats_columns) + tuple(self.fluid.stats_columns) \
             + ("n_coupled",) + STATS + tuple(f"fsi_force_{a}" for a in "xyz"[:ctx.dim])
         ctx.halo_skip = HALO_SKIP
-        ctx.fields_outside = self.state_to_main
+        ctx.fields_outside, ctx.outside_names = self.state_to_main, VIEW_STATE
         self.view = None
         self._stats = {k: 0.0 for k in STATS}
         self._fluid_any = False
@@ -124,11 +124,12 @@ class Coupled:
         for name in VIEW_STATE:
             ctx.particles.data.pop(name, None)
 
-    def state_to_main(self) -> tuple:
-        """Put the tensors of :data:`VIEW_STATE` back in the main set (the view's values on
-        the owned solid rows; ``Context.fields_outside``); returns the names put back. The
-        next view build takes them out again."""
-        return self.view.state_to(VIEW_STATE) if self.view is not None else ()
+    def state_to_main(self, names=None) -> tuple:
+        """Put the tensors of :data:`VIEW_STATE` (those ``names``) back in the main set (the
+        view's values on the owned solid rows; ``Context.fields_outside``); returns the
+        names put back. The next view build takes them out again."""
+        names = VIEW_STATE if names is None else tuple(k for k in names if k in VIEW_STATE)
+        return self.view.state_to(names) if self.view is not None else ()
 
     def _orphans(self) -> np.ndarray:
         """Main-set rows of the solids left with too small a share of their reference

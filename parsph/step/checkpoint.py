@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import itertools
 import os
 
 import numpy as np
@@ -79,13 +80,17 @@ def _open(path, mode, comm):
 
 
 def write(path: str, comm, particles, rcb, meta: dict, stage_states: dict, fault=None,
-          rcb_ref=None, rcb_wall=None) -> None:
+          rcb_ref=None, rcb_wall=None, more=()) -> None:
     """Collective: write a checkpoint atomically (temporary file, then rename).
 
     Parameters
     ----------
     particles : ParticleSet
         Its owned rows of every field are written.
+    more : iterable of (str, numpy.ndarray)
+        More fields (owned rows), written one after the other as they come (the state a
+        stage holds outside the set, :meth:`Context.fields_one_at_a_time`); every rank
+        yields the same names.
     rcb : RCB
         The current partition (mixed layout: of the fluid rows).
     rcb_ref, rcb_wall : RCB, optional
@@ -111,8 +116,8 @@ def write(path: str, comm, particles, rcb, meta: dict, stage_states: dict, fault
             f.attrs[key] = value
         f.create_dataset("counts", data=counts)
         grp = f.create_group("fields")
-        for name in sorted(particles.data):
-            arr = particles[name][:n]
+        for name, arr in itertools.chain(
+                ((k, particles[k][:n]) for k in sorted(particles.data)), more):
             dset = grp.create_dataset(name, shape=(total,) + arr.shape[1:], dtype=arr.dtype)
             if n:
                 dset[offset:offset + n] = arr

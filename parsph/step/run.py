@@ -262,10 +262,9 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
                 "last_frame_step": last_frame_step, "next_checkpoint": next_ck,
                 "elastic_energy": last["ee"]}
         states = {s.name: s.state() for s in stages if hasattr(s, "state")}
-        with ctx.all_fields():
-            checkpoint.write(ck_path, comm, particles, ctx.rcb, meta, states,
-                             fault=faults.checkpoint_fault(ctx.step), rcb_ref=ctx.rcb_ref,
-                             rcb_wall=ctx.rcb_wall)
+        checkpoint.write(ck_path, comm, particles, ctx.rcb, meta, states,
+                         fault=faults.checkpoint_fault(ctx.step), rcb_ref=ctx.rcb_ref,
+                         rcb_wall=ctx.rcb_wall, more=ctx.fields_one_at_a_time())
 
     def at_sync_step():
         return ctx.step % ctx.sync_every == 0
