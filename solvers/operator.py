@@ -84,7 +84,9 @@ class OperatorSystem(LinearSystem):
     Use: :meth:`set_operator` with the callback and the points of other ranks it reads,
     :meth:`assemble_preconditioner` with the scalar matrix (or :meth:`set_jacobi` with its
     inverse diagonal, for an operator close to the identity), then :meth:`solve`;
-    :meth:`release_preconditioner` frees the AMG set-up when it will not be reused.
+    :meth:`release` frees what the solves used (the AMG set-up, the operator and the
+    caller's arrays it holds, the Krylov vectors) when none will follow before the next
+    :meth:`set_operator`.
     """
 
     def __init__(self, comm, prefix, n_local_rows, block_size, ksp_type="gmres",
@@ -172,20 +174,25 @@ class OperatorSystem(LinearSystem):
             self._ksp.setGMRESRestart(k)
             self._restart = k
 
-    def release_preconditioner(self) -> None:
-        """Collective: free the scalar matrix and its AMG hierarchy now (the next
-        :meth:`assemble_preconditioner` builds them afresh; no solve before it). Held
-        until then, they sat beside the pressure system's: a 3D coupled step's peak
-        memory held both (docs/performance.md)."""
+    def release(self) -> None:
+        """Collective: free what the last solves used, now: the scalar matrix and its AMG
+        hierarchy, the operator's callback (and with it the caller's arrays it reads), the
+        scatter of the other ranks' unknowns and the Krylov method's vectors. The next
+        :meth:`set_operator` and :meth:`assemble_preconditioner` (or :meth:`set_jacobi`)
+        set them up again; no solve before them. Held until then, they sat beside the
+        pressure system's and the next step's neighbour lists: 3D coupled steps
+        peaked with both (docs/performance.md)."""
         self.scalar.release()
+        self._free_operator()
+        self._apply = self._correct = self._inv_diag = None
+        self._u = np.empty((0, self.block_size))
+        super().release()  # the KSP's vectors and the operator's PETSc matrix
 
     def resize(self, n_local_rows: int) -> None:
         """Collective: the same system over a new number of rows (see
         :meth:`solvers.LinearSystem.resize`); the operator must be set again."""
-        self._free_operator()
-        super().resize(n_local_rows)
+        super().resize(n_local_rows)  # (and release())
         self.scalar.resize(n_local_rows)
-        self._u = np.empty((0, self.block_size))
 
     def _free_operator(self) -> None:
         for obj in (self._scatter, self._ghost_vec, self._ghost_is):

@@ -856,10 +856,11 @@ def test_operator_system_matches_the_assembled_block_system(comm, n, capfd):
             assert x.shape == (points.size, bs) and info["iterations"] < 40
             assert_matches(x, exact.reshape(-1, bs)[points])
             assert system.ksp.getPC().getType() == "python"
-            # the AMG set-up freed after the solve (the fluid's viscous step: not held
-            # beside the PPE's), and built again for the next solve
-            system.release_preconditioner()
+            # what the solve used freed after it (the fluid's viscous step: not held
+            # beside the PPE's), and set up again for the next solve
+            system.release()
             assert system.scalar._mat is None and system.scalar._held is None
+            assert system._apply is None and system._scatter is None
             _operator_problem(comm, system, n, coupling)
             x, _ = system.solve(b.reshape(-1, bs)[points])
             assert_matches(x, exact.reshape(-1, bs)[points])

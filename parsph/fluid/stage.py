@@ -296,7 +296,7 @@ class IISPH:
         t_asm = time.perf_counter() - t0
         vstar, info = visc.solve(rhs[order], x0=p["v"][:n][order])
         if self.num.viscous_operator == "matrix_free":
-            visc.release_preconditioner()  # not held beside the PPE's
+            visc.release()  # not held beside the PPE's and the next lists
         full = np.zeros((n, dim))
         full[order] = vstar
         self.solid_viscous_dv = np.where((solid[:n] > 0)[:, None] & moved[:, None],
