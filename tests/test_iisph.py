@@ -241,9 +241,19 @@ def test_matrix_free_viscous_operator_is_the_assembled_matrix(dim, morris):
     coef = np.full(size, np.nan)
     kind = np.full(n, 3, dtype=np.int8)
     S, rhs_s = dense_system(viscous.viscous_pairs, *args, morris, n_points=n_rows,
-                            tail=(coef, at, kind, 0.0),
+                            tail=(coef, at, kind, 0.0, np.empty(0)),
                             capacity=assembly.csr_capacity(fluid, solid, rowv, indptr, 1, False))
     np.testing.assert_array_equal(rhs_s, rhs)
+    # Jacobi's use: the diagonal alone, the CSR arrays untouched, the same coefficients
+    diag, coef_d, kind_d = np.full(n_rows, np.nan), np.full(size, np.nan), np.full(n, 3, np.int8)
+    ptr0, cols0, vals0 = np.full(3, -7, np.int32), np.full(3, -7, np.int32), np.full(3, -7.0)
+    nnz_d, rhs_d = viscous.viscous_pairs(*args, morris, 0, ptr0, cols0, vals0, coef_d, at,
+                                         kind_d, 0.0, diag)
+    assert nnz_d == 0 and np.all(ptr0 == -7) and np.all(cols0 == -7) and np.all(vals0 == -7)
+    np.testing.assert_array_equal(diag, np.diag(S))
+    np.testing.assert_array_equal(coef_d, coef)
+    np.testing.assert_array_equal(kind_d, kind)
+    np.testing.assert_array_equal(rhs_d, rhs)
     assert size < indices.size and not np.isnan(coef).any()
     assert np.all(at[order][kind[order] == 3] == -10 ** 9)
     src = row.copy()  # one rank: every point's unknowns are its row's
@@ -265,7 +275,7 @@ def test_matrix_free_viscous_operator_is_the_assembled_matrix(dim, morris):
     coef_r = np.full(size, np.nan)
     kind_r = np.full(n, 3, dtype=np.int8)
     S_r, rhs_r = dense_system(viscous.viscous_pairs, *args, morris, n_points=n_rows,
-                              tail=(coef_r, at, kind_r, 1.5 * d),
+                              tail=(coef_r, at, kind_r, 1.5 * d, np.empty(0)),
                               capacity=assembly.csr_capacity(fluid, solid, rowv, indptr, 1,
                                                              False))
     np.testing.assert_array_equal(coef_r, coef)

@@ -24,7 +24,7 @@ from numba import njit
 from parsph.core.kernel import constants, delta, fac_grad_k, w_and_fac_grad_k, w_k
 from parsph.core.tensor import _eig6
 
-__all__ = ["density_and_surface", "fluid_weight_sum", "rows_in_order", "csr_capacity", "divergence",
+__all__ = ["WorkArrays", "density_and_surface", "fluid_weight_sum", "rows_in_order", "csr_capacity", "divergence",
            "pressure_gradient", "pressure_gradient_corrected", "has_fluid_neighbour"]
 
 #: A boundary particle (wall or solid) comes into contact with the fluid when the
@@ -33,6 +33,40 @@ __all__ = ["density_and_surface", "fluid_weight_sum", "rows_in_order", "csr_capa
 #: contact down to the free surface's beta (see density_and_surface).
 CONTACT = 0.97
 
+
+
+class WorkArrays:
+    """Work arrays kept from step to step: fresh arrays of a step's size would be
+    allocated and page-faulted anew every step. Each set grows when too small (by a
+    quarter, or to a tenth more than asked), never shrinks, and is named by a key."""
+
+    def __init__(self):
+        self._sets = {}
+
+    def csr(self, system, capacity, key=None):
+        """``(indptr, cols, values)`` for a CSR block of ``system``'s owned rows with room
+        for ``capacity`` entries; ``cols`` has PETSc's index type. The PPE and the viscous
+        preconditioner share the default set (``key`` None), as their matrices' storage."""
+        key = key or "csr"
+        ptr, cols, vals = self._sets.get(key, (None, None, None))
+        if ptr is None or ptr.size != system.n_local + 1:
+            ptr = np.zeros(system.n_local + 1, dtype=system.index_dtype)
+        if cols is None or cols.size < capacity:
+            size = max(int(capacity), int(1.25 * cols.size) if cols is not None else 0)
+            cols, vals = np.empty(size, dtype=system.index_dtype), np.empty(size)
+        self._sets[key] = ptr, cols, vals
+        return ptr, cols, vals
+
+    def floats(self, key, size):
+        """``size`` float64 values (the first of the set ``key``)."""
+        a = self._sets.get(key)
+        if a is None or a.size < size:
+            a = self._sets[key] = np.empty(int(1.1 * size) + 1)
+        return a[:size]
+
+    def drop(self, key) -> None:
+        """Free the set ``key`` (if any)."""
+        self._sets.pop(key, None)
 
 @njit(cache=True)
 def density_and_surface(x, m, fluid, rho0, indptr, indices, h, dim, beta, gamma, rho, free):

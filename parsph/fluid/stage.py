@@ -141,7 +141,7 @@ class IISPH:
         self.les = self.num.smagorinsky * self.num.les_width * ctx.h
         self._ppe = self._visc = None
         self._ppe_ids = None  # the particles of the PPE's rows at its last assembly
-        self._buffers = {}
+        self._buffers = assembly.WorkArrays()
         self._n_rows = -1
         self._dt_cfl = 0.0
         self._stats = {k: 0.0 for k in STATS}
@@ -202,22 +202,6 @@ class IISPH:
         if not same:
             self._ppe_ids = ids.copy()
         return same
-
-    def _csr_buffers(self, system, capacity, key=None):
-        """Work arrays ``(indptr, cols, values)`` for a CSR block of ``system``'s owned rows
-        with room for ``capacity`` entries, kept from step to step (fresh arrays of this
-        size would be allocated and page-faulted anew every step); grown by a quarter
-        when too small. ``cols`` has PETSc's index type. ``key`` names the set; the PPE
-        and the viscous preconditioner share the default one, as their matrices' storage."""
-        key = key or "csr"
-        ptr, cols, vals = self._buffers.get(key, (None, None, None))
-        if ptr is None or ptr.size != system.n_local + 1:
-            ptr = np.zeros(system.n_local + 1, dtype=system.index_dtype)
-        if cols is None or cols.size < capacity:
-            size = max(int(capacity), int(1.25 * cols.size) if cols is not None else 0)
-            cols, vals = np.empty(size, dtype=system.index_dtype), np.empty(size)
-        self._buffers[key] = ptr, cols, vals
-        return ptr, cols, vals
 
     def destroy(self) -> None:
         """Free the PETSc objects (collective)."""
@@ -287,7 +271,7 @@ class IISPH:
             rhs = self._viscous_operator(ctx, visc, order, dt, g, morris, m, row, indptr,
                                          indices, fluid, solid)
         else:
-            ptr, cols, vals = self._csr_buffers(visc, assembly.csr_capacity(
+            ptr, cols, vals = self._buffers.csr(visc, assembly.csr_capacity(
                 fluid, solid, row, indptr, dim, not morris))
             nnz, rhs = viscous.viscous_csr(
                 p["x"], p["v"], m, p["rho"], p["nu"], fluid, solid, p["wall_slip"], row,
@@ -309,26 +293,29 @@ class IISPH:
                           fluid, solid):
         """Collective: the matrix-free viscous system (:class:`solvers.OperatorSystem`):
         a coefficient per pair of the rows with pairs (:func:`viscous.pair_offsets`) and
-        the scalar preconditioner matrix from :func:`viscous.viscous_pairs`, the operator
-        :func:`viscous.viscous_apply` on them. Returns the right-hand side (owned, (n, dim))."""
+        the scalar preconditioner matrix (Jacobi: its diagonal) from
+        :func:`viscous.viscous_pairs`, the operator :func:`viscous.viscous_apply` on them.
+        Returns the right-hand side (owned, (n, dim))."""
         p, n, dim, h = ctx.particles, ctx.n_owned, ctx.dim, ctx.h
         first = visc.offset // dim
-        ptr, cols, vals = self._csr_buffers(visc.scalar, assembly.csr_capacity(
+        ptr, cols, vals = self._buffers.csr(visc.scalar, assembly.csr_capacity(
             fluid, solid, row, indptr, 1, False))
         at = np.zeros(n, dtype=np.int64)
         size = viscous.pair_offsets(order, fluid, solid, p["wall_slip"], indptr, indices, at)
-        coef = self._buffers.get("visc_coef")
-        if coef is None or coef.size < size:
-            coef = self._buffers["visc_coef"] = np.empty(int(1.1 * size) + 1)
-        coef = coef[:size]
+        if self._jacobi and size <= vals.size:  # no matrix to write: the coefficients in
+            coef = vals[:size]  # the memory of the PPE's, whose solve is done (227 B/p in 3D)
+            self._buffers.drop("visc_coef")
+        else:
+            coef = self._buffers.floats("visc_coef", size)
         kind = np.full(n, 3, dtype=np.int8)
         x = p["x"]
+        diag = np.empty(order.size if self._jacobi else 0)
         nnz, rhs = viscous.viscous_pairs(
             x, p["v"], m, p["rho"], p["nu"], fluid, solid, p["wall_slip"], row,
             indptr, indices, h, dim, dt, g, morris, first, ptr, cols, vals, coef, at, kind,
-            self.num.viscous_preconditioner_reach * ctx.d)
+            self.num.viscous_preconditioner_reach * ctx.d, diag)
         if self._jacobi:  # a small viscous number: Jacobi, not an AMG set-up
-            visc.set_jacobi(unit_diagonal(ptr, cols[:nnz], vals[:nnz], first))
+            visc.set_jacobi(np.divide(1.0, diag, out=np.ones_like(diag), where=diag > 0.0))
         else:
             visc.assemble_preconditioner(ptr, cols[:nnz], vals[:nnz])
         # where each local particle's unknowns sit in the operator's input: the owned rows
@@ -450,7 +437,7 @@ class IISPH:
         # rescaled so the correction is per CFL step
         alpha = self.num.alpha * min(1.0, (dt / self._dt_cfl) ** 2) if self._dt_cfl > 0 \
             else self.num.alpha
-        ptr, cols, vals = self._csr_buffers(ppe, assembly.csr_capacity(
+        ptr, cols, vals = self._buffers.csr(ppe, assembly.csr_capacity(
             fluid, solid, row, indptr, 1, False))
         expansion = self.num.density_correction == "both" or (
             self.num.density_correction == "auto" and not confined)
@@ -458,7 +445,7 @@ class IISPH:
             x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt, alpha, d,
             self.num.ppe_laplacian == "corrected", expansion, ppe.offset, ptr, cols, vals)
         if coupled:  # the solid-response term (strong coupling, docs/coupling.md)
-            near = self._csr_buffers(ppe, response.near_capacity(
+            near = self._buffers.csr(ppe, response.near_capacity(
                 fluid, free, solid, row, indptr, indices, ppe.offset, ptr), key="near")
             n_near = response.add_near_response(
                 x, m, rho, rho0, fluid, free, solid, row, p["inv_mass"], p["a_self"], indptr,

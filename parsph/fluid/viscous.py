@@ -93,15 +93,19 @@ def _viscous_pair(m, rho, nu, fluid, i, j, r2, k, dim, dt, eta2, morris):
 
 @njit(cache=True)
 def viscous_pairs(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, dim, dt,
-                  g, morris, first, out_ptr, out_cols, out_vals, coef, at, kind, reach):
+                  g, morris, first, out_ptr, out_cols, out_vals, coef, at, kind, reach,
+                  diag):
     """The matrix-free form of :func:`viscous_csr`: the scalar preconditioner matrix (one
     row per point), each pair's coefficient in ``coef`` (pair ``p`` of particle ``i`` at
     ``at[i] + p``, :func:`pair_offsets`) and each row's form in ``kind`` (see there) for
     :func:`viscous_apply`. The preconditioner's moving rows keep the pairs closer than
-    ``reach`` (m; 0: all), see :func:`_viscous_rows`. Returns ``(nnz, rhs)``."""
+    ``reach`` (m; 0: all), see :func:`_viscous_rows`. With a ``diag`` of one value per
+    row, only the matrix's diagonal is written there (Jacobi needs no more) and the
+    ``out_`` arrays are not touched: ``coef`` may then be the memory of ``out_vals``.
+    Returns ``(nnz, rhs)`` (nnz 0 with ``diag``)."""
     return _viscous_rows(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, dim,
                          dt, g, morris, first, out_ptr, out_cols, out_vals, True, coef, at,
-                         kind, reach * reach if reach > 0.0 else np.inf)
+                         kind, reach * reach if reach > 0.0 else np.inf, diag)
 
 
 @njit(cache=True)
@@ -136,13 +140,13 @@ def viscous_csr(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, d
     return _viscous_rows(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, dim,
                          dt, g, morris, first, out_ptr, out_cols, out_vals, False,
                          np.empty(0), np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int8),
-                         np.inf)
+                         np.inf, np.empty(0))
 
 
 @njit(cache=True)
 def _viscous_rows(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, dim, dt,
                   g, morris, first, out_ptr, out_cols, out_vals, scalar, coef, at, kind,
-                  reach2):
+                  reach2, diag):
     """CSR block and right-hand side of the implicit viscous predictor (30)/(34).
 
     Writes the owned scalar rows (block size ``dim``: component ``a`` of global point
@@ -186,7 +190,9 @@ def _viscous_rows(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h,
     kc = constants(h, dim)
     nd = 1 if scalar else dim  # scalar rows per point
     pairs = coef.shape[0] > 0
-    out_ptr[0] = 0
+    write = diag.shape[0] == 0  # the matrix (else its diagonal only)
+    if write:
+        out_ptr[0] = 0
     k = 0
     order = rows_in_order(row, n, first)
     for q in range(order.shape[0]):
@@ -241,14 +247,17 @@ def _viscous_rows(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h,
                         if pairs:
                             coef[c0 + p] = c
                         continue
-                if dslot < 0 and rj >= ri:
-                    dslot, t, last = _slot(out_cols, out_vals, base, span, bw, nd, t, last, ri)
-                s, t, last = _slot(out_cols, out_vals, base, span, bw, nd, t, last, rj)
+                s = 0
+                if write:
+                    if dslot < 0 and rj >= ri:
+                        dslot, t, last = _slot(out_cols, out_vals, base, span, bw, nd, t, last,
+                                               ri)
+                    s, t, last = _slot(out_cols, out_vals, base, span, bw, nd, t, last, rj)
                 if ghost:
                     wij = w_k(math.sqrt(r2), kc) / wsum
                     if pairs:
                         coef[c0 + p] = wij
-                    for a in range(nd):
+                    for a in range(nd if write else 0):
                         out_vals[base + a * span + s] += wij
                     continue
                 if pairs:  # a moving row (the ghost rows went on above)
@@ -256,7 +265,7 @@ def _viscous_rows(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h,
                 if morris or scalar:
                     cs = c if morris else c * r2 / dim  # the block's trace over dim
                     e00 -= cs
-                    for a in range(nd):
+                    for a in range(nd if write else 0):
                         out_vals[base + a * span + s] += cs
                     continue
                 c00, c01, c02 = c * d0 * d0, c * d0 * d1, c * d0 * d2
@@ -268,6 +277,9 @@ def _viscous_rows(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h,
                 e12 -= c12
                 e22 -= c22
                 _add_block(out_vals, base + s * dim, span, dim, c00, c01, c02, c11, c12, c22)
+        if not write:
+            diag[q] = e00
+            continue
         if dslot < 0:
             dslot, t, last = _slot(out_cols, out_vals, base, span, bw, nd, t, last, ri)
         if bw == dim and nd == dim:
