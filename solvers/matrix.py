@@ -332,10 +332,21 @@ class MatrixAssembly:
     def _hypre_over(self, indptr, cols, values):
         """Collective: :meth:`_aij_over` converted in place to hypre's ParCSR matrix
         (petsc4py's ``convert`` without ``out``): a copy in hypre, after which nothing
-        refers to the arrays."""
+        refers to the arrays.
+
+        PETSc's assembly of a hypre matrix (inside the conversion) builds hypre's
+        auxiliary per-row arrays anew, for values set later, unless the matrix is
+        ``SORTED_FULL``: 16 bytes per entry and two allocations per row beside the
+        ParCSR's 12 bytes per entry. No value is set later, so a second assembly with
+        that option frees them: 33 -> 13 bytes per entry of the PPE's AMG matrix, 240
+        bytes per particle of the 3D tank of ``jobs/bench_memory.py``
+        (docs/performance.md; the matrix and the AMG's iterations are the same)."""
+        PETSc = self._PETSc
         mat = self._aij_over(indptr, cols, values)
         mat.setOptionsPrefix(self.prefix)
-        mat.convert(self._PETSc.Mat.Type.HYPRE)
+        mat.convert(PETSc.Mat.Type.HYPRE)
+        mat.setOption(PETSc.Mat.Option.SORTED_FULL, True)
+        mat.assemble()
         return mat
 
     def _aij_over(self, indptr, cols, values):
