@@ -264,8 +264,9 @@ class Coupled:
             self.fluid.step(ctx, dt, self._coupling(ctx, inv))
             # the fluid's force on each solid particle (eq. (45)) before constraints: the
             # pressure's and the viscous exchange of the viscous solve (47)
-            viscous = sp["m"][:ns, None] * self.fluid.solid_viscous_dv[view.rows] / dt
-            fsi = self.fluid.solid_force[view.rows] + viscous
+            fsi = self.fluid.solid_force[view.rows]
+            if len(self.fluid.solid_viscous_dv):
+                fsi = fsi + sp["m"][:ns, None] * self.fluid.solid_viscous_dv[view.rows] / dt
             p["fsi_force"][view.rows] = fsi
             sp["v"][:ns] = p["v"][view.rows]
             self.solid.constrain(sctx)

@@ -278,7 +278,8 @@ class IISPH:
                 indptr, indices, h, dim, dt, g, morris, visc.offset // dim, ptr, cols, vals)
             visc.assemble_csr(ptr, cols[:nnz], vals[:nnz])
         t_asm = time.perf_counter() - t0
-        vstar, info = visc.solve(rhs[order], x0=p["v"][:n][order])
+        rhs = rhs[order]  # (the other order not held through the solve)
+        vstar, info = visc.solve(rhs, x0=p["v"][:n][order])
         if self.num.viscous_operator == "matrix_free":
             visc.release()  # not held beside the PPE's and the next lists
         full = np.zeros((n, dim))
@@ -407,7 +408,7 @@ class IISPH:
         vs[:n] = p["v"][:n]  # walls and solids: their velocity (the fluid rows: below)
         info_v = dict(iterations=0, residual_norm=0.0, time_s=0.0)
         moved = own_fluid | own_solid  # the rows whose velocity the viscous solve sets
-        self.solid_viscous_dv = np.zeros((n, dim))
+        self.solid_viscous_dv = np.zeros((0, dim))  # (set by a viscous solve, else none)
         if first:  # the PPE's predictor: the body force alone
             vs[:n][own_fluid] += dt * g
             self._halo(ctx, ["v_star", "a_self"] if coupled else ["v_star"])
@@ -535,6 +536,7 @@ class IISPH:
                                         indices, h, d, dim, mu, push,
                                         np.full(len(fluid), -1.0))
         p["v"][:n][own_fluid] = vnew[own_fluid]
+        grad = vnew = corr = moving = None  # not held through the viscous solve (24 B/p each)
         t_asm += time.perf_counter() - t0
         if first:  # the viscous solve on the projected velocity, the new p in eq. (40)
             t0 = time.perf_counter()
