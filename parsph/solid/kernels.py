@@ -32,6 +32,13 @@ from parsph.core.kernel import w as _w
 from parsph.core.tensor import eigh3
 
 
+@njit(cache=True, inline="always")
+def _factor(r, h, dim):
+    """:func:`parsph.core.kernel.fac_grad` rounded to float32, the value
+    :func:`pair_factors` stores (the same in every sum of this module)."""
+    return np.float64(np.float32(fac_grad(r, h, dim)))
+
+
 @njit(cache=True)
 def correction_matrices(X, vol, sel, n, indptr, indices, h, dim, floor, L):
     r"""Correction matrices :math:`\mathbf L_i` of the kernel gradient (rows ``i < n``).
@@ -78,7 +85,7 @@ def correction_matrices(X, vol, sel, n, indptr, indices, h, dim, floor, L):
             r2 = 0.0
             for a in range(dim):
                 r2 += (X[i, a] - X[j, a]) ** 2
-            f = -fac_grad(math.sqrt(r2), h, dim) * vol[j]
+            f = -_factor(math.sqrt(r2), h, dim) * vol[j]
             for a in range(dim):
                 for b in range(dim):
                     A[a, b] += f * (X[i, a] - X[j, a]) * (X[i, b] - X[j, b])
@@ -98,8 +105,13 @@ def correction_matrices(X, vol, sel, n, indptr, indices, h, dim, floor, L):
 def pair_factors(X, sel, n, indptr, indices, h, dim):
     r"""Per pair, :math:`F(|\mathbf R_{ij}|) = W'(R)/R` (:func:`parsph.core.kernel.fac_grad`), 0 for
     pairs with a non-solid end: the reference configuration is fixed, so the kernel is
-    evaluated once (PERF-NOTES: 8 bytes per pair, as fast as storing the gradient)."""
-    out = np.zeros(indices.shape[0])
+    evaluated once (PERF-NOTES: as fast as storing the gradient). Stored in float32 (4
+    bytes per pair, 90 bytes per particle of the 3D tank of ``jobs/bench_memory.py``): a
+    relative rounding of 6e-8, far below the discretisation's error, and the same value
+    for both ends of a pair, so the pair forces stay equal and opposite. Every TLSPH sum
+    uses this rounded factor (:func:`_factor`), the correction matrices too, so the
+    corrected gradients stay exact for linear fields to float64 round-off."""
+    out = np.zeros(indices.shape[0], dtype=np.float32)
     for i in range(n):
         if not sel[i]:
             continue
@@ -110,7 +122,7 @@ def pair_factors(X, sel, n, indptr, indices, h, dim):
             r2 = 0.0
             for a in range(dim):
                 r2 += (X[i, a] - X[j, a]) ** 2
-            out[p] = fac_grad(math.sqrt(r2), h, dim)
+            out[p] = _factor(math.sqrt(r2), h, dim)
     return out
 
 
@@ -129,7 +141,7 @@ def gradient(f, X, vol, L, sel, n, indptr, indices, h, dim, out):
                 r2 = 0.0
                 for a in range(dim):
                     r2 += (X[i, a] - X[j, a]) ** 2
-                c = vol[j] * (f[j] - f[i]) * fac_grad(math.sqrt(r2), h, dim)
+                c = vol[j] * (f[j] - f[i]) * _factor(math.sqrt(r2), h, dim)
                 for a in range(dim):
                     g[a] += c * (X[i, a] - X[j, a])
         for a in range(dim):
