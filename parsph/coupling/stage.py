@@ -40,9 +40,9 @@ SOLID_STATE = ("x", "v", "p_c", "modulus", "solid_init", "eps_p", "p", "porosity
 #: The solid's tensors, which only the TLSPH step reads: held by the view alone, and put
 #: back in the main set (:meth:`Coupled.state_to_main`) only for a checkpoint, a probe
 #: sample, or while the solids migrate to a new partition. In the main set they cost
-#: 312 bytes on every row of every phase in 3D, and their copy back each step a pass
+#: 240 bytes on every row of every phase in 3D, and their copy back each step a pass
 #: over them (docs/performance.md).
-VIEW_STATE = ("F", "tau", "eps_e", "P", "lapv")
+VIEW_STATE = ("F", "tau", "eps_e", "lapv")
 
 #: Fields of the main set the solid's view does without: the fluid stage's and the
 #: coupling's own (the fluid's force on a solid is read from the main set). Copied into

@@ -45,7 +45,7 @@ class TLSPH:
 
     def __init__(self, ctx):
         p = ctx.particles
-        for name in ("F", "tau", "eps_e", "P"):
+        for name in ("F", "tau", "eps_e"):
             p.add_field(name, (3, 3))
         for name in ("L", "Q"):
             p.add_field(name, (3, 3))
@@ -122,14 +122,13 @@ class TLSPH:
             if int(self.tab[k, C["model"]]) == CAM_CLAY:
                 p["tau"][:n][sel] = -m.initial_pressure * eye
                 p["p_c"][:n][sel] = m.preconsolidation
-        p["P"][:n][fresh] = p["tau"][:n][fresh]
         p["p"][:n][fresh] = -np.trace(p["tau"][:n][fresh], axis1=1, axis2=2) / 3.0
         initial_velocity(ctx.scene.constraints, p["X"][:n], p["v"][:n], fresh)
         p["solid_init"][:n][fresh] = 1
 
     def _stress_terms(self, ctx):
         p = ctx.particles
-        stress_terms(p["P"], p["F"], p["L"], self.rho0_of, p["material"], self.sel,
+        stress_terms(p["tau"], p["F"], p["L"], self.rho0_of, p["material"], self.sel,
                      p.n_owned, ctx.dim, self.num.ambient_pressure, p["Q"])
 
     # ------------------------------------------------------------------ time step
@@ -208,7 +207,7 @@ class TLSPH:
         kernels.velocity_gradient(self._pad(v), X, self.vol, p["L"], fp, *args, fdot)
         failed = np.zeros(n, dtype=np.uint8)
         bad, plastic = update_particles(self.tab, p["material"], sel, n, dt, fdot, p["F"],
-                                        p["tau"], p["eps_e"], p["P"], p["eps_p"], p["p_c"],
+                                        p["tau"], p["eps_e"], p["eps_p"], p["p_c"],
                                         p["porosity"], p["p"], failed, dim)
         # coupled scenes with phase change: a failed particle becomes fluid (docs/coupling.md)
         self.failed = np.flatnonzero(failed)

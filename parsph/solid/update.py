@@ -118,7 +118,7 @@ def elastic_energy(tab, material, sel, n, vol, eps_e):
 
 
 @njit(cache=True)
-def update_particles(tab, material, sel, n, dt, Fdot, F, tau, eps_e, P, eps_p, p_c,
+def update_particles(tab, material, sel, n, dt, Fdot, F, tau, eps_e, eps_p, p_c,
                      porosity, pressure, failed, dim):
     """Advance F, porosity and stress of the owned solid particles by one step.
 
@@ -136,9 +136,9 @@ def update_particles(tab, material, sel, n, dt, Fdot, F, tau, eps_e, P, eps_p, p
         Time step (s).
     Fdot : ndarray (n, 3, 3)
         Rate of F from :func:`parsph.solid.kernels.velocity_gradient`.
-    F, tau, eps_e, P : ndarray (N, 3, 3)
-        Deformation gradient, Kirchhoff stress (Pa), elastic log strain, nominal stress
-        (Pa); updated in place.
+    F, tau, eps_e : ndarray (N, 3, 3)
+        Deformation gradient, Kirchhoff stress (Pa), elastic log strain; updated in place
+        (the nominal stress follows from F and tau, :func:`stress_terms`).
     eps_p, p_c, porosity, pressure : ndarray (N,)
         Accumulated plastic strain, pre-consolidation pressure (Pa), porosity, and the
         output pressure ``-tr(sigma)/3`` (Pa, compression positive); updated in place.
@@ -227,15 +227,17 @@ def update_particles(tab, material, sel, n, dt, Fdot, F, tau, eps_e, P, eps_p, p
                     eps_e[i, :, :] = work
             else:
                 eps_e[i, :, :] = work
-        nominal_stress_into(F[i], tau[i], P[i])
         pressure[i] = -(tau[i, 0, 0] + tau[i, 1, 1] + tau[i, 2, 2]) / (3.0 * J)
     return bad, plastic
 
 
 @njit(cache=True)
-def stress_terms(P, F, L, rho0_of, material, sel, n, dim, ambient, Q):
+def stress_terms(tau, F, L, rho0_of, material, sel, n, dim, ambient, Q):
     r"""Per-particle :math:`\mathbf Q_i = \mathbf L_i^T(\mathbf P_i - \mathbf P^{amb}_i)
-    /\rho_{0i}^2` read by :func:`parsph.solid.kernels.stress_divergence`.
+    /\rho_{0i}^2` read by :func:`parsph.solid.kernels.stress_divergence`, with the nominal
+    stress :math:`\mathbf P_i = \boldsymbol\tau_i\mathbf F_i^{-T}` of the Kirchhoff stress
+    (:func:`parsph.solid.hencky.nominal_stress_into`), made here and not kept (72 bytes
+    per solid particle in 3D).
 
     :math:`\mathbf P^{amb} = -p_{amb} J\mathbf F^{-1}` is the nominal stress of a uniform
     external pressure (its divergence vanishes, Piola identity): subtracting it makes
@@ -243,12 +245,14 @@ def stress_terms(P, F, L, rho0_of, material, sel, n, dim, ambient, Q):
     pressure); ``ambient = 0`` leaves traction-free surfaces.
     """
     Finv = np.empty((3, 3))
+    P = np.empty((3, 3))
     for i in range(n):
         if not sel[i]:
             for a in range(dim):
                 for b in range(dim):
                     Q[i, a, b] = 0.0
             continue
+        nominal_stress_into(F[i], tau[i], P)
         J = 1.0
         if ambient != 0.0:
             J = inv3_into(F[i], Finv)
@@ -257,7 +261,7 @@ def stress_terms(P, F, L, rho0_of, material, sel, n, dim, ambient, Q):
             for b in range(dim):
                 s = 0.0
                 for k in range(dim):
-                    pk = P[i, k, b]
+                    pk = P[k, b]
                     if ambient != 0.0:
                         pk += ambient * J * Finv[k, b]
                     s += L[i, k, a] * pk
