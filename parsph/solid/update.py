@@ -234,9 +234,9 @@ def update_particles(tab, material, sel, n, dt, Fdot, F, tau, eps_e, eps_p, p_c,
 @njit(cache=True)
 def stress_terms(tau, F, L, rho0_of, material, sel, n, dim, ambient, Q):
     r"""Per-particle :math:`\mathbf Q_i = \mathbf L_i^T(\mathbf P_i - \mathbf P^{amb}_i)
-    /\rho_{0i}^2` read by :func:`parsph.solid.kernels.stress_divergence`, with the nominal
-    stress :math:`\mathbf P_i = \boldsymbol\tau_i\mathbf F_i^{-T}` of the Kirchhoff stress
-    (:func:`parsph.solid.hencky.nominal_stress_into`), made here and not kept (72 bytes
+    /\rho_{0i}^2` read by :func:`parsph.solid.kernels.stress_divergence`, with the
+    nominal stress :math:`\mathbf P_i = \mathbf F_i^{-1}\boldsymbol\tau_i` of eq. (27)
+    (:func:`parsph.solid.hencky.nominal_stress_into`) made here and not kept (72 bytes
     per solid particle in 3D).
 
     :math:`\mathbf P^{amb} = -p_{amb} J\mathbf F^{-1}` is the nominal stress of a uniform
