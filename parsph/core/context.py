@@ -89,7 +89,7 @@ class Context:
     def fields_one_at_a_time(self):
         """Yields ``(name, owned rows)`` of each field a stage holds outside the set, each
         in the set for its own turn only: a checkpoint writes the solid's tensors so. All
-        at once (:meth:`all_fields`) they had been the peak of a 3D coupled run (312 bytes
+        at once (:meth:`all_fields`) they had been the peak of a 3D coupled run (240 bytes
         per particle beside the step's own arrays, docs/performance.md)."""
         for name in self.outside_names:
             added = self.fields_outside((name,))

@@ -299,8 +299,8 @@ def viscous_apply(u, out, order, src, kind, coef, at, x, indptr, indices, dim):
     by those of the other points the rows reach (from other ranks); ``src[j]`` is the
     position in ``u`` of local particle ``j`` (-1 if it is in no row). ``order[q]`` is the
     local particle of row ``q``; ``kind``, ``coef`` and ``at`` come from
-    :func:`viscous_pairs`. Row
-    ``q`` of particle ``i`` is ``u_i - sum_j c r r^T (u_i - u_j)`` (kind 0, eq. (34)),
+    :func:`viscous_pairs`. Row ``q`` of particle ``i`` is
+    ``u_i - sum_j c r r^T (u_i - u_j)`` (kind 0, eq. (34)),
     ``u_i - sum_j c (u_i - u_j)`` (1, Morris), ``u_i + sum_f w_if u_f`` (2, no-slip
     ghost) or ``u_i`` (3): the assembled block's row without its nine entries per pair.
     """

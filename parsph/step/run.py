@@ -155,8 +155,8 @@ def _build(scene, out, comm, petsc_args, restart):
     else:
         fields = ck.fields
     particles = ParticleSet(dim, fields)
-    # the set's rows are new arrays from the first distribution on: held here, the
-    # generated ones had stayed for the whole run (69 bytes per particle in 3D)
+    # the set's rows are new arrays from the first distribution on (several ranks): held
+    # here, the generated ones would stay for the whole run
     del fields
     if ck is not None:
         ck.fields = None
