@@ -106,6 +106,7 @@ class Coupled:
         ctx.fields_outside, ctx.outside_names = self.state_to_main, VIEW_STATE
         self.view = None
         self._stats = {k: 0.0 for k in STATS}
+        self._stats["n_fluidised"] = 0  # a count, as restored from a checkpoint
         self._fluid_any = False
         self._dt_solid = math.inf
 
