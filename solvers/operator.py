@@ -23,6 +23,8 @@ from solvers.system import LinearSystem
 #: third iteration held 15 vectors of the system, 226 bytes per particle in the 3D tank of
 #: ``jobs/bench_memory.py``, 118 with this restart (docs/performance.md).
 JACOBI_RESTART = 3
+#: PETSc's GMRES restart, that of the AMG-preconditioned solves.
+GMRES_RESTART = 30
 
 
 class _Operator:
@@ -105,7 +107,7 @@ class OperatorSystem(LinearSystem):
         self._ksp.setFromOptions()  # the options database still wins
         opts = self._PETSc.Options()
         self._restart = None if self._ksp.getType() != "gmres" or opts.hasName(
-            self.prefix + "ksp_gmres_restart") else 30  # PETSc's default
+            self.prefix + "ksp_gmres_restart") else GMRES_RESTART
         self._apply = self._correct = self._inv_diag = None
         self._scatter = self._ghost_vec = self._ghost_is = None
         self._u = np.empty((0, self.block_size))
@@ -153,7 +155,7 @@ class OperatorSystem(LinearSystem):
         """Collective: the scalar matrix (one row per point, global point columns; see
         :meth:`solvers.LinearSystem.assemble_csr`) BoomerAMG is set up on, afresh."""
         self._inv_diag = None
-        self._set_restart(30)
+        self._set_restart(GMRES_RESTART)
         self.scalar.set_up_preconditioner_csr(indptr, cols, values)
 
     def set_jacobi(self, inverse_diagonal) -> None:

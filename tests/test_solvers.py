@@ -838,7 +838,7 @@ def test_operator_system_matches_the_assembled_block_system(comm, n, capfd):
     scatter), preconditioned by BoomerAMG on a scalar matrix per component, solves
     kron(L, C) as the direct solve does; after a resize to other rows it solves again."""
     from solvers import OperatorSystem
-    from solvers.operator import JACOBI_RESTART
+    from solvers.operator import GMRES_RESTART, JACOBI_RESTART
 
     bs = 2
     coupling = np.array([[2.0, -0.6], [0.3, 1.5]])
@@ -864,10 +864,10 @@ def test_operator_system_matches_the_assembled_block_system(comm, n, capfd):
             _operator_problem(comm, system, n, coupling)
             x, _ = system.solve(b.reshape(-1, bs)[points])
             assert_matches(x, exact.reshape(-1, bs)[points])
-            assert system._restart == 30  # an AMG set-up: PETSc's GMRES restart
+            assert system._restart == GMRES_RESTART == 30  # an AMG set-up: PETSc's
             # Jacobi instead of the AMG (no set-up) for an operator close to the identity
             # (a viscous step at a small viscous number), GMRES restarted every
-            # JACOBI_RESTART iterations; the next AMG set-up (next pass) restores 30
+            # JACOBI_RESTART iterations; the next AMG set-up (next pass) restores GMRES_RESTART
             eps = 0.02
             _operator_problem(comm, system, n, coupling, eps)
             system.set_jacobi(np.full(points.size, 1.0 / (1.0 + 4.0 * eps)))

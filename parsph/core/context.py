@@ -75,15 +75,16 @@ class Context:
         return self.particles.n_owned
 
     @contextmanager
-    def all_fields(self):
-        """Every field of the particles' state in the set for the duration (a checkpoint,
-        a probe sample): what a stage holds outside it (:attr:`fields_outside`) is put
-        back, and taken out again after."""
-        names = self.fields_outside() if self.fields_outside is not None else ()
+    def all_fields(self, names=None):
+        """Every field of the particles' state in the set for the duration (a probe
+        sample), or those ``names`` of it: what a stage holds outside the set
+        (:attr:`fields_outside`) is put back, and taken out again after. Yields the names
+        put back (not those the set had already)."""
+        added = self.fields_outside(names) if self.fields_outside is not None else ()
         try:
-            yield
+            yield added
         finally:
-            for name in names:
+            for name in added:
                 self.particles.data.pop(name, None)
 
     def fields_one_at_a_time(self):
@@ -92,13 +93,9 @@ class Context:
         at once (:meth:`all_fields`) they had been the peak of a 3D coupled run (240 bytes
         per particle beside the step's own arrays, docs/performance.md)."""
         for name in self.outside_names:
-            added = self.fields_outside((name,))
-            try:
-                if name in added:  # (not if the set has it already)
+            with self.all_fields((name,)) as added:
+                if name in added:
                     yield name, self.particles[name][: self.n_owned]
-            finally:
-                for k in added:
-                    self.particles.data.pop(k, None)
 
     def update_halo(self, names) -> None:
         """Refresh the halo rows of the named fields from their owners (same pattern)."""
