@@ -24,7 +24,7 @@ from numba import njit
 from parsph.core.kernel import constants, delta, fac_grad_k, w_and_fac_grad_k, w_k
 from parsph.core.tensor import _eig6
 
-__all__ = ["WorkArrays", "density_and_surface", "fluid_weight_sum", "rows_in_order", "csr_capacity", "divergence",
+__all__ = ["WorkArrays", "density_and_surface", "fluid_weight_sum", "rows_in_order", "csr_capacity",
            "pressure_gradient", "pressure_gradient_corrected", "has_fluid_neighbour"]
 
 #: A boundary particle (wall or solid) comes into contact with the fluid when the
@@ -69,9 +69,14 @@ class WorkArrays:
         self._sets.pop(key, None)
 
 @njit(cache=True)
-def density_and_surface(x, m, fluid, rho0, indptr, indices, h, dim, beta, gamma, rho, free):
+def density_and_surface(x, v, m, fluid, rho0, indptr, indices, h, dim, beta, gamma, rho, free):
     r"""Summation density (33) of the owned fluid rows, the free-surface flag, and which
-    boundary rows the fluid touches.
+    boundary rows the fluid touches; returns the largest :math:`|\nabla\cdot\mathbf v|`
+    (36) of the interior fluid rows (1/s, 0 if none), the ``max_divergence`` statistic.
+
+    The divergence is that of ``v``, the velocity the step starts from (the last step's
+    result), over the same pairs as the density, divided by the new density: one pass,
+    where a pass of its own at the end of the step had cost 16 ms of a 0.49 s 3D step.
 
     A fluid row is on the free surface (``free[i] = 1``: p = 0) when its support is
     visibly incomplete: :math:`\rho_i < \beta \rho_{0i}` (Koshizuka & Oka 1996) **or**
@@ -99,6 +104,7 @@ def density_and_surface(x, m, fluid, rho0, indptr, indices, h, dim, beta, gamma,
     n = indptr.shape[0] - 1
     k = constants(h, dim)
     w0 = k[1]
+    max_div = 0.0
     for i in range(n):
         acc = m[i] * w0
         if not fluid[i]:
@@ -112,6 +118,8 @@ def density_and_surface(x, m, fluid, rho0, indptr, indices, h, dim, beta, gamma,
             free[i] = 0 if touched and acc >= level * rho0[i] else 1
             continue
         g0 = g1 = g2 = 0.0
+        div = 0.0
+        v0, v1, v2 = _vec(v, i, dim)
         for q in range(indptr[i], indptr[i + 1]):
             j = indices[q]
             d0, d1, d2, r2 = delta(x, i, j, dim)
@@ -121,9 +129,14 @@ def density_and_surface(x, m, fluid, rho0, indptr, indices, h, dim, beta, gamma,
             g0 += f * d0
             g1 += f * d1
             g2 += f * d2
+            u0, u1, u2 = _vec(v, j, dim)
+            div += m[j] * fij * ((u0 - v0) * d0 + (u1 - v1) * d1 + (u2 - v2) * d2)
         rho[i] = acc
         gnorm = math.sqrt(g0 * g0 + g1 * g1 + g2 * g2)
         free[i] = 1 if (acc < beta * rho0[i] or (acc < rho0[i] and h * gnorm > gamma)) else 0
+        if free[i] == 0:
+            max_div = max(max_div, abs(div / acc))
+    return max_div
 
 
 @njit(cache=True, inline="always")
@@ -186,27 +199,6 @@ def _store(out, i, dim, a0, a1, a2):
     out[i, 1] = a1
     if dim == 3:
         out[i, 2] = a2
-
-
-@njit(cache=True)
-def divergence(x, vs, m, rho, fluid, indptr, indices, h, dim):
-    """Velocity divergence (36) of the owned fluid rows (1/s); 0 elsewhere."""
-    n = indptr.shape[0] - 1
-    out = np.zeros(n)
-    k = constants(h, dim)
-    for i in range(n):
-        if not fluid[i]:
-            continue
-        v0, v1, v2 = _vec(vs, i, dim)
-        acc = 0.0
-        for p in range(indptr[i], indptr[i + 1]):
-            j = indices[p]
-            d0, d1, d2, r2 = delta(x, i, j, dim)
-            u0, u1, u2 = _vec(vs, j, dim)
-            dvr = (u0 - v0) * d0 + (u1 - v1) * d1 + (u2 - v2) * d2
-            acc += m[j] * dvr * fac_grad_k(math.sqrt(r2), k)
-        out[i] = acc / rho[i]
-    return out
 
 
 @njit(cache=True)
