@@ -43,6 +43,21 @@ def _bounds(x):
     return lo, hi, finite
 
 
+@njit(cache=True)
+def masked_bounds(x, mask):
+    """Per-axis minimum and maximum of the rows of ``x`` with ``mask`` set (``inf`` and
+    ``-inf`` if none), without the copy ``x[mask]`` makes."""
+    n, dim = x.shape
+    lo = np.full(dim, np.inf)
+    hi = np.full(dim, -np.inf)
+    for i in range(n):
+        if mask[i]:
+            for a in range(dim):
+                lo[a] = min(lo[a], x[i, a])
+                hi[a] = max(hi[a], x[i, a])
+    return lo, hi
+
+
 def _cell_size(radius, extent, reach):
     """Cell side: ``radius / reach`` enlarged by the rounding margin of the grid.
 

@@ -238,11 +238,15 @@ class TLSPH:
         count = 0
         rows = np.flatnonzero(solid).astype(np.int64)
         if len(xw) and len(rows):
-            xs = p["x"][:n][solid]
-            xall = np.concatenate([xs, xw])
-            # the walls near each solid (indices into xall: walls after the solids)
-            indptr, indices = build_cross_csr(xs, xw, ctx.radius)
-            indices += np.int32(len(rows))
+            # the walls near each solid; only the solids with any take part (most have
+            # none: the contact had cost 16 ms of a 0.48 s 3D tank step, 5 of them on rows
+            # with empty lists)
+            indptr, indices = build_cross_csr(p["x"][:n][rows], xw, ctx.radius)
+            lengths = np.diff(indptr)
+            rows = rows[lengths > 0]
+            indptr = np.concatenate([[0], np.cumsum(lengths[lengths > 0])])
+            xall = np.concatenate([p["x"][:n][rows], xw])
+            indices += np.int32(len(rows))  # into xall: the walls after the solids
             wall = np.zeros(len(xall), dtype=np.uint8)
             wall[len(rows):] = 1
             mu = np.full(len(rows), self.num.wall_friction)
