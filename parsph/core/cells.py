@@ -58,6 +58,57 @@ def masked_bounds(x, mask):
     return lo, hi
 
 
+@njit(cache=True)
+def reachable_cells(flag_s, ncell, reach, sparse, start):
+    """Per cell of the dense grid (linear id, as :func:`_ranges` numbers them): 1 when a
+    slot with ``flag_s`` set lies in the cells within ``reach`` cells of it along every
+    axis, the cells :func:`_ranges` may search; 0 when none does, so a particle in that
+    cell finds no flagged neighbour and need not be searched. Empty with the sparse grid
+    (every particle is searched)."""
+    if sparse:
+        return np.zeros(0, dtype=np.uint8)
+    n0, n1, n2 = ncell[0], ncell[1], ncell[2]
+    occ = np.zeros(n0 * n1 * n2, dtype=np.uint8)
+    for c in range(occ.shape[0]):
+        for t in range(start[c], start[c + 1]):
+            if flag_s[t]:
+                occ[c] = 1
+                break
+    grow = np.zeros_like(occ)
+    for a in range(n0):  # dilated by reach along the last axis, then the middle, the first
+        for b in range(n1):
+            base = (a * n1 + b) * n2
+            for c in range(n2):
+                if occ[base + c]:
+                    for e in range(max(c - reach, 0), min(c + reach, n2 - 1) + 1):
+                        grow[base + e] = 1
+    occ[:] = 0
+    for a in range(n0):
+        for b in range(n1):
+            for c in range(n2):
+                if grow[(a * n1 + b) * n2 + c]:
+                    for e in range(max(b - reach, 0), min(b + reach, n1 - 1) + 1):
+                        occ[(a * n1 + e) * n2 + c] = 1
+    grow[:] = 0
+    for a in range(n0):
+        for b in range(n1):
+            for c in range(n2):
+                if occ[(a * n1 + b) * n2 + c]:
+                    for e in range(max(a - reach, 0), min(a + reach, n0 - 1) + 1):
+                        grow[(e * n1 + b) * n2 + c] = 1
+    return grow
+
+
+@njit(cache=True, inline="always")
+def cell_of(x, i, lo, inv_cell, ncell):
+    """Linear id of the dense-grid cell of the padded position ``x[i]`` (as
+    :func:`_pad_coords` and :func:`_ranges` compute it)."""
+    c0 = min(max(np.int64((x[i, 0] - lo[0]) * inv_cell), 0), ncell[0] - 1)
+    c1 = min(max(np.int64((x[i, 1] - lo[1]) * inv_cell), 0), ncell[1] - 1)
+    c2 = min(max(np.int64((x[i, 2] - lo[2]) * inv_cell), 0), ncell[2] - 1)
+    return (c0 * ncell[1] + c1) * ncell[2] + c2
+
+
 def _cell_size(radius, extent, reach):
     """Cell side: ``radius / reach`` enlarged by the rounding margin of the grid.
 

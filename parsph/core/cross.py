@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from parsph.core.cells import _binned, _checked_box, _pad_coords, _ranges
+from parsph.core.cells import _binned, _checked_box, _pad_coords, _ranges, cell_of, reachable_cells
 
 __all__ = ["build_cross_csr"]
 
@@ -59,9 +59,13 @@ def build_cross_csr(xq, xt, radius):
     lo3, hi3 = np.minimum(lq, lt), np.maximum(hq, ht)
     extent = max(float(hi3[a]) - float(lo3[a]) for a in range(3))
     order, _, xs, grid = _binned(xt, lo3, hi3, extent, radius)
-    qp, qc = _pad_coords(xq, lo3, grid[1], grid[2])
+    qp, _ = _pad_coords(xq, lo3, grid[1], grid[2])
     r2max = radius * radius
-    near = _near_targets(qc, *grid)
+    # the queries with no target in the cells within reach are not searched: the solids
+    # of a coupled scene that touch no wall (most of them) had cost a pruned range search
+    # each, twice, 11 of the 16 ms of a 3D tank's wall contact (112,761 particles)
+    near = reachable_cells(np.ones(len(xt), dtype=np.uint8), grid[2], grid[3], grid[4],
+                           grid[5])
     _cross_pass(qp, xs, order, r2max, *grid, indptr, np.empty(0, dtype=np.int32), near,
                 False)
     indices = np.empty(int(indptr[-1]), dtype=np.int32)
@@ -70,58 +74,20 @@ def build_cross_csr(xq, xt, radius):
 
 
 @njit(cache=True)
-def _near_targets(qc, lo, inv_cell, ncell, reach, sparse, start, cells, cell_start):
-    """Per query (cell coordinates ``qc``, as :func:`_ranges` computes them): 1 when a
-    target lies in the cells within ``reach`` of its own, 0 when none does (its search is
-    skipped). With the dense grid this is one look-up in the grid's occupancy dilated by
-    ``reach`` cells: the solids of a coupled scene that touch no wall (most of them) had
-    cost a pruned range search each, twice, 11 of the 16 ms of a 3D tank's wall contact
-    (112,761 particles, one rank). With the sparse grid every query is searched."""
-    nq = qc.shape[0]
-    near = np.ones(nq, dtype=np.uint8)
-    if sparse:
-        return near
-    n0, n1, n2 = ncell[0], ncell[1], ncell[2]
-    occ = np.zeros(n0 * n1 * n2, dtype=np.uint8)
-    for a in range(n0):  # dilate the occupied cells by reach along each axis in turn
-        for b in range(n1):
-            base = (a * n1 + b) * n2
-            for c in range(n2):
-                if start[base + c + 1] > start[base + c]:
-                    for e in range(max(c - reach, 0), min(c + reach, n2 - 1) + 1):
-                        occ[base + e] = 1
-    grow = np.zeros_like(occ)
-    for a in range(n0):
-        for b in range(n1):
-            for c in range(n2):
-                if occ[(a * n1 + b) * n2 + c]:
-                    for e in range(max(b - reach, 0), min(b + reach, n1 - 1) + 1):
-                        grow[(a * n1 + e) * n2 + c] = 1
-    occ[:] = 0
-    for a in range(n0):
-        for b in range(n1):
-            for c in range(n2):
-                if grow[(a * n1 + b) * n2 + c]:
-                    for e in range(max(a - reach, 0), min(a + reach, n0 - 1) + 1):
-                        occ[(e * n1 + b) * n2 + c] = 1
-    for i in range(nq):
-        near[i] = occ[(qc[i, 0] * n1 + qc[i, 1]) * n2 + qc[i, 2]]
-    return near
-
-
-@njit(cache=True)
 def _cross_pass(qp, xs, order, r2max, lo, inv_cell, ncell, reach, sparse, start, cells,
                 cell_start, indptr, indices, near, fill):
     """The count pass (``fill`` False: ``indptr`` from the number of targets within reach
     of each query) or the fill pass (each query's targets, rows of the caller's array,
     sorted ascending into ``indices``) over the same candidate ranges and test. Queries
-    with ``near[i] == 0`` (:func:`_near_targets`), and in the fill pass those the count
-    found no target for, are not searched."""
+    in a cell without targets within reach (``near``, :func:`reachable_cells`; empty:
+    none known), and in the fill pass those the count found no target for, are not
+    searched."""
     w = 2 * reach + 1
     rng = np.empty((w * w, 2), dtype=np.int64)
     gap2 = np.empty((3, w))
     for i in range(qp.shape[0]):
-        if not near[i] or (fill and indptr[i + 1] == indptr[i]):
+        if (near.shape[0] and not near[cell_of(qp, i, lo, inv_cell, ncell)]) or (
+                fill and indptr[i + 1] == indptr[i]):
             if not fill:
                 indptr[i + 1] = indptr[i]
             continue
