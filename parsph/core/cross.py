@@ -16,7 +16,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from parsph.core.cells import _binned, _checked_box, _pad_coords, _ranges, cell_of, reachable_cells
+from parsph.core.cells import (_binned, _checked_box, _pad_coords, _ranges, cell_of,
+                               reachable_cells)
 
 __all__ = ["build_cross_csr"]
 
@@ -64,8 +65,7 @@ def build_cross_csr(xq, xt, radius):
     # the queries with no target in the cells within reach are not searched: the solids
     # of a coupled scene that touch no wall (most of them) had cost a pruned range search
     # each, twice, 11 of the 16 ms of a 3D tank's wall contact (112,761 particles)
-    near = reachable_cells(np.ones(len(xt), dtype=np.uint8), grid[2], grid[3], grid[4],
-                           grid[5])
+    near = reachable_cells(np.ones(len(xt), dtype=np.uint8), *grid[2:6])
     _cross_pass(qp, xs, order, r2max, *grid, indptr, np.empty(0, dtype=np.int32), near,
                 False)
     indices = np.empty(int(indptr[-1]), dtype=np.int32)

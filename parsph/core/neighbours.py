@@ -243,7 +243,7 @@ def _disorder(order):
 
 def _running_count(flags):
     """``out[t]`` = the number of nonzero ``flags`` before index ``t`` (length N + 1)."""
-    out = np.zeros(len(flags) + 1, dtype=np.int64)
+    out = np.zeros(len(flags) + 1, dtype=np.int32)  # (rows are fewer than 2**31)
     np.cumsum(flags != 0, out=out[1:])
     return out
 
@@ -316,7 +316,7 @@ def build_csr(x, n_query, radius, active=None):
     # searched (the dry walls and the type-I solids of a coupled scene, about half its
     # rows, had cost a pruned range search each in both passes: 27 of the 87 ms of the
     # 3D tank of jobs/bench_memory.py, 112,761 particles)
-    act_s = kept = np.zeros(0, dtype=np.int64)
+    act_s = kept = np.zeros(0, dtype=np.int32)
     wet_cells = kept_cells = np.zeros(0, dtype=np.uint8)
     if active is not None:
         act_s = _running_count(active[order])
@@ -324,6 +324,7 @@ def build_csr(x, n_query, radius, active=None):
     keep = np.zeros(n_query, dtype=np.uint8)
     keep_s = np.zeros(n, dtype=np.uint8)
     _count(xs, order, n_query, r2max, *grid, indptr, act_s, wet_cells, keep, keep_s)
+    act_s = wet_cells = None  # (not held beside the lists)
     indices = np.empty(int(indptr[-1]), dtype=np.int32)
     if indices.shape[0] > _GATHER_MIN_PAIRS and _disorder(order) > _GATHER_DISORDER:
         ok = _fill_gather(xs, order, n_query, r2max, *grid, indptr, indices, keep)

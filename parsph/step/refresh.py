@@ -239,6 +239,7 @@ def refresh(ctx, force_partition: bool = False) -> None:
     def neighbours():
         if current:
             wet = p["phase"] == PHASE_FLUID if ctx.wet_lists else None
+            ctx.indptr = ctx.indices = None  # the last lists are not held beside the new
             ctx.indptr, ctx.indices = build_csr(p[key], p.n_owned, ctx.radius, wet)
         else:
             ctx.indptr = np.zeros(p.n_owned + 1, dtype=np.int64)
