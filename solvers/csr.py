@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["check_block", "count_diagonal", "sort_neighbours_by_row", "sparsify",
+__all__ = ["check_block", "count_diagonal", "row_block_counts", "sort_neighbours_by_row", "sparsify",
            "split_diagonal_block", "split_in_place", "unit_diagonal", "scale_rows"]
 
 
@@ -120,6 +120,19 @@ def count_diagonal(cols, first, stop):
         c = cols[k]
         p += first <= c < stop
     return p
+
+
+@njit(cache=True)
+def row_block_counts(indptr, cols, first, stop, d, o):
+    """Per row of a CSR block, its entries with the column in ``[first, stop)`` (into
+    ``d``) and the others (into ``o``): the preallocation of a hypre matrix."""
+    for i in range(indptr.shape[0] - 1):
+        n_d = 0
+        for k in range(indptr[i], indptr[i + 1]):
+            c = cols[k]
+            n_d += first <= c < stop
+        d[i] = n_d
+        o[i] = indptr[i + 1] - indptr[i] - n_d
 
 
 @njit(cache=True)

@@ -21,9 +21,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from solvers.csr import (check_block, count_diagonal, sparsify, split_diagonal_block,
-                         split_in_place)
+from parsph.core import heap
+from solvers.csr import (check_block, count_diagonal, row_block_counts, sparsify,
+                         split_diagonal_block, split_in_place)
 from solvers.errors import SolverError, agree
+from solvers.petsc_env import hypre_preallocation as _hypre_preallocation
 
 
 class MatrixAssembly:
@@ -304,6 +306,8 @@ class MatrixAssembly:
             self._pmat.destroy()
             self._pmat = None
         if drop > 0.0 and self._pc_age == 0:  # before the split in place below
+            # the copy and hypre's conversion of it are the PPE's largest allocations
+            heap.release_free_pages(self.n_local_rows)
             ptr, c, _ = arrays
             sparse = (np.empty_like(ptr), np.empty_like(c), np.empty(c.size))
             k = sparsify(*arrays, self.offset, drop, *sparse)
@@ -312,6 +316,7 @@ class MatrixAssembly:
         if sparse is not None:
             self._pmat = self._hypre_over(*sparse)
             del sparse
+            heap.release_free_pages(self.n_local_rows)  # the copy and hypre's row arrays
         self._held = arrays
         self._pattern = None
         self._drop_product()
@@ -330,6 +335,40 @@ class MatrixAssembly:
                 np.ascontiguousarray(values, dtype=np.float64))
 
     def _hypre_over(self, indptr, cols, values):
+        """Collective: hypre's ParCSR matrix (``MATHYPRE``) of a checked CSR block of the
+        owned rows, made as such: preallocated per row (``MatHYPRESetPreallocation``,
+        :func:`solvers.petsc_env.hypre_preallocation`), ``SORTED_FULL`` (whole sorted
+        rows: hypre writes them straight into its diagonal and off-diagonal blocks) and
+        filled from the arrays, after which nothing refers to them.
+
+        PETSc's conversion of an AIJ matrix (:meth:`_hypre_converted`, the fallback where
+        the preallocation cannot be called) passes through hypre's auxiliary per-row
+        arrays, 61 bytes per entry at its peak against 15 kept; made as such, 20. That
+        conversion of the PPE's sparser copy, every fresh set-up, had become the peak RSS
+        of the 3D tank of ``jobs/bench_memory.py`` once the heap's free pages were handed
+        back before it (:mod:`parsph.core.heap`; docs/performance.md)."""
+        preallocate = _hypre_preallocation()
+        if preallocate is None:
+            return self._hypre_converted(indptr, cols, values)
+        PETSc = self._PETSc
+        first, stop = self.owned_range
+        d = np.empty(indptr.size - 1, dtype=indptr.dtype)
+        o = np.empty_like(d)
+        row_block_counts(indptr, cols, first, stop, d, o)
+        mat = PETSc.Mat().create(comm=self.comm)
+        mat.setSizes(((self.n_local, self.n_global), (self.n_local, self.n_global)))
+        mat.setType(PETSc.Mat.Type.HYPRE)
+        mat.setOptionsPrefix(self.prefix)
+        mat.setOption(PETSc.Mat.Option.SORTED_FULL, True)
+        code = preallocate(mat.handle, 0, d.ctypes.data, 0, o.ctypes.data)
+        if code:
+            raise SolverError(f"{self.prefix}: MatHYPRESetPreallocation failed (PETSc "
+                              f"error {code})")
+        mat.setValuesCSR(indptr, cols, values)
+        mat.assemble()
+        return mat
+
+    def _hypre_converted(self, indptr, cols, values):
         """Collective: :meth:`_aij_over` converted in place to hypre's ParCSR matrix
         (petsc4py's ``convert`` without ``out``): a copy in hypre, after which nothing
         refers to the arrays.

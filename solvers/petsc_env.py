@@ -9,6 +9,7 @@ database instead, so they still reach every solver created afterwards.
 """
 from __future__ import annotations
 
+import functools
 import sys
 from typing import Sequence
 
@@ -89,6 +90,36 @@ def has_hypre() -> bool:
     finally:
         pc.destroy()
     return True
+
+
+@functools.lru_cache(maxsize=None)
+def hypre_preallocation():
+    """PETSc's ``MatHYPRESetPreallocation`` as a ctypes function ``(Mat handle, dnz, dnnz
+    pointer, onz, onnz pointer)``, or None where it cannot be found (a PETSc without
+    hypre, or no shared library of PETSc among the process's mappings).
+
+    petsc4py does not wrap it, and its ``setPreallocationNNZ`` does not reach a hypre
+    matrix; without it hypre gives each row a default room that a longer row overflows.
+    """
+    import ctypes
+
+    PETSc = petsc()
+    paths = []
+    try:
+        with open("/proc/self/maps") as fh:
+            paths = [line.split()[-1] for line in fh if "libpetsc" in line]
+    except OSError:
+        pass
+    for path in dict.fromkeys(paths):
+        try:
+            fn = ctypes.CDLL(path).MatHYPRESetPreallocation
+        except (OSError, AttributeError):
+            continue
+        index = ctypes.c_int64 if PETSc.IntType(0).itemsize == 8 else ctypes.c_int32
+        fn.argtypes = [ctypes.c_void_p, index, ctypes.c_void_p, index, ctypes.c_void_p]
+        fn.restype = ctypes.c_int
+        return fn
+    return None
 
 
 def info() -> dict:

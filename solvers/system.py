@@ -20,6 +20,7 @@ import numpy as np
 
 from decomposition.numbering import global_offset
 from decomposition.reduce import global_any
+from parsph.core import heap
 from solvers import petsc_env
 from solvers.errors import SolverError, agree
 from solvers.matrix import MatrixAssembly
@@ -362,6 +363,9 @@ class LinearSystem(MatrixAssembly):
         self._ksp.setInitialGuessNonzero(x0 is not None)
         self.fresh_setup = self._pc_age == 0
         start = time.perf_counter()
+        # before the set-up's and the Krylov method's allocations: the heap's free pages
+        # would otherwise stay resident beside them (the peak RSS of a large run)
+        heap.release_free_pages(self.n_local_rows)
         if self.fresh_setup:
             self._ksp.solve(self._b, self._x)
         else:

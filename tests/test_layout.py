@@ -110,8 +110,8 @@ def test_test_modules_are_dealt_to_balanced_shards():
     deal = shard_of_modules(modules, 2)
     assert deal == shard_of_modules(list(reversed(modules)), 2)
     assert sorted(deal) == modules and set(deal.values()) == {0, 1}
-    cheap = {"test_benchlib", "test_geometry", "test_geotiff", "test_layout", "test_loading",
-             "test_mesh", "test_scene"}  # under a second each
+    cheap = {"test_benchlib", "test_geometry", "test_geotiff", "test_heap", "test_layout",
+             "test_loading", "test_mesh", "test_scene"}  # under a second each
     assert set(modules) - set(MODULE_SECONDS) == cheap
     load = [sum(MODULE_SECONDS.get(m, 1.0) for m in modules if deal[m] == k) for k in (0, 1)]
     assert max(load) <= 1.1 * min(load), load

@@ -80,10 +80,6 @@ class Coupled:
         self.fluid = IISPH(ctx)  # adds the fluid fields
         ctx.particles.add_field("fluidised", dtype=np.uint8)
         ctx.particles.add_field("ref_count0", dtype=np.int32)  # initial reference neighbours
-        # the strongly coupled PPE (parsph/fluid/response.py): per-component inverse
-        # true mass of the solids and their acceleration per unit of their own pressure
-        ctx.particles.add_field("inv_mass", (ctx.dim,))
-        ctx.particles.add_field("a_self", (ctx.dim,))
         # the fluid's force on each solid particle in the last coupled step (N, N/m in 2D):
         # the solid's sub-steps feel it (lagged), see step()
         ctx.particles.add_field("fsi_force", (ctx.dim,))

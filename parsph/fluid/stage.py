@@ -36,10 +36,18 @@ from decomposition.numbering import global_offset
 from decomposition.reduce import global_any, global_max, global_min, global_reduce, global_sum
 from parsph.fluid import assembly, response, rheology, viscous
 from parsph.fluid.ppe import ppe_csr
+from parsph.core import heap
 from parsph.core.contact import wall_contact
 from parsph.fluid.walls import wall_slip
 from parsph.scene.materials import PHASE_FLUID, PHASE_WALL
 from solvers.csr import scale_rows, sort_neighbours_by_row, unit_diagonal
+
+#: Fields made at the start of a step and dropped at its end (name, vector): nothing
+#: reads them between steps. The rows' numbering in the systems and, in a coupled step,
+#: the solids' per-component inverse true mass and their response to their own pressure
+#: (:mod:`parsph.fluid.response`): 56 bytes per particle in 3D that had sat beside the
+#: next lists, the solid's step and a checkpoint.
+STEP_FIELDS = (("fluid_row", False), ("inv_mass", True), ("a_self", True))
 
 #: BoomerAMG defaults of the PPE beyond every system's smoother (``-ppe_pc_hypre_boomeramg_
 #: agg_nl 0`` undoes it). The viscous system keeps plain coarsening (the demo gained nothing).
@@ -93,8 +101,8 @@ class IISPH:
     Per-particle fields it adds: ``rho`` (summation density, eq. 33), ``rho0`` (rest
     density), ``nu`` (viscosity, eqs. 40-41), ``v_star`` (predictor velocity, eq. 30),
     ``v_ghost`` (no-slip ghost velocity of wall rows, Adami et al. 2012),
-    ``free_surface`` (uint8), ``wall_slip`` (uint8, 1 = free-slip wall), ``fluid_row``
-    (int64: global PETSc point of the row).
+    ``free_surface`` (uint8), ``wall_slip`` (uint8, 1 = free-slip wall); during a step
+    only (:data:`STEP_FIELDS`) ``fluid_row`` (int64: global PETSc point of the row).
 
     Notes
     -----
@@ -121,7 +129,6 @@ class IISPH:
         p.add_field("v_ghost", (dim,))
         p.add_field("free_surface", dtype=np.uint8)
         p.add_field("wall_slip", dtype=np.uint8)
-        p.add_field("fluid_row", dtype=np.int64)
         # the PPE's last solution of every row, the next solve's initial guess (a solid
         # row's p is its mean stress, which the TLSPH stage writes, not an interface
         # pressure: as a guess it made GMRES diverge at once where the soil failed)
@@ -341,8 +348,12 @@ class IISPH:
         n, dim, h, d = ctx.n_owned, ctx.dim, ctx.h, ctx.d
         self._t_halo = 0.0
         t0 = time.perf_counter()
+        # what the solid's step freed goes back before the systems' arrays are made
+        heap.release_free_pages(n)
         fluid = (p["phase"] == PHASE_FLUID).astype(np.uint8)
         coupled = coupling is not None
+        for name, vector in STEP_FIELDS[:None if coupled else 1]:
+            p.add_field(name, (dim,) if vector else (), np.float64 if vector else np.int64)
         solid = coupling.scale if coupled else np.zeros(len(fluid))
         if coupled:
             p["inv_mass"][:n] = coupling.inv_mass
@@ -574,6 +585,8 @@ class IISPH:
         }
         if coupled:
             self._stats["n_coupled"] = int(n_coupled)
+        for name, _ in STEP_FIELDS:
+            p.data.pop(name, None)
 
     def stats(self) -> dict:
         """Iterations and residuals of both solves, free-surface count, timings of the last step."""

@@ -33,6 +33,7 @@ import numpy as np
 from decomposition import collective, world
 from decomposition.box import Box
 from decomposition.reduce import global_any, global_sum
+from parsph.core import heap
 from parsph.core.context import Context
 from parsph.core.kernel import smoothing_length, support_radius
 from parsph.core.particles import ParticleSet
@@ -267,6 +268,7 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
                 "last_frame_step": last_frame_step, "next_checkpoint": next_ck,
                 "elastic_energy": last["ee"]}
         states = {s.name: s.state() for s in stages if hasattr(s, "state")}
+        heap.release_free_pages(ctx.n_owned)  # (a run's last checkpoint had been its peak)
         checkpoint.write(ck_path, comm, particles, ctx.rcb, meta, states,
                          fault=faults.checkpoint_fault(ctx.step), rcb_ref=ctx.rcb_ref,
                          rcb_wall=ctx.rcb_wall, more=ctx.fields_one_at_a_time())
@@ -314,6 +316,8 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
             # a sync step: every stray particle moves to its owner and the next solves
             # set up afresh, as after a restart from here
             ctx.sync_point = at_sync_step()
+            # what the step freed goes back before the next one's lists and halo are made
+            heap.release_free_pages(ctx.n_owned)
             refresh(ctx)
             if ctx.sync_point:
                 _renew_preconditioners(stages)
