@@ -42,12 +42,11 @@ from parsph.fluid.walls import wall_slip
 from parsph.scene.materials import PHASE_FLUID, PHASE_WALL
 from solvers.csr import scale_rows, sort_neighbours_by_row, unit_diagonal
 
-#: Fields made at the start of a step and dropped at its end (name, vector): nothing
-#: reads them between steps. The rows' numbering in the systems and, in a coupled step,
-#: the solids' per-component inverse true mass and their response to their own pressure
-#: (:mod:`parsph.fluid.response`): 56 bytes per particle in 3D that had sat beside the
-#: next lists, the solid's step and a checkpoint.
-STEP_FIELDS = (("fluid_row", False), ("inv_mass", True), ("a_self", True))
+#: Fields of a step alone (name, vector): the systems' row numbers, v*, and (coupled) the
+#: solids' inverse true mass and self-response (:mod:`parsph.fluid.response`); all but
+#: the first are dropped before a viscous solve after the projection. 80 B per particle
+#: in 3D that had sat beside the next lists, the solid's step, a checkpoint, that solve.
+STEP_FIELDS = (("fluid_row", False), ("v_star", True), ("inv_mass", True), ("a_self", True))
 
 #: BoomerAMG defaults of the PPE beyond every system's smoother (``-ppe_pc_hypre_boomeramg_
 #: agg_nl 0`` undoes it). The viscous system keeps plain coarsening (the demo gained nothing).
@@ -99,10 +98,10 @@ class IISPH:
     """Implicit incompressible SPH fluid (Newtonian or Bingham), paper section 4.
 
     Per-particle fields it adds: ``rho`` (summation density, eq. 33), ``rho0`` (rest
-    density), ``nu`` (viscosity, eqs. 40-41), ``v_star`` (predictor velocity, eq. 30),
-    ``v_ghost`` (no-slip ghost velocity of wall rows, Adami et al. 2012),
-    ``free_surface`` (uint8), ``wall_slip`` (uint8, 1 = free-slip wall); during a step
-    only (:data:`STEP_FIELDS`) ``fluid_row`` (int64: global PETSc point of the row).
+    density), ``nu`` (viscosity, eqs. 40-41), ``v_ghost`` (no-slip ghost velocity of wall
+    rows, Adami et al. 2012), ``free_surface`` (uint8), ``wall_slip`` (uint8, 1 =
+    free-slip wall); during a step only (:data:`STEP_FIELDS`) ``fluid_row`` (int64:
+    global PETSc point of the row) and ``v_star`` (predictor velocity, eq. 30).
 
     Notes
     -----
@@ -125,7 +124,6 @@ class IISPH:
         p.add_field("rho")
         p.add_field("rho0")
         p.add_field("nu")
-        p.add_field("v_star", (dim,))
         p.add_field("v_ghost", (dim,))
         p.add_field("free_surface", dtype=np.uint8)
         p.add_field("wall_slip", dtype=np.uint8)
@@ -352,7 +350,7 @@ class IISPH:
         heap.release_free_pages(n)
         fluid = (p["phase"] == PHASE_FLUID).astype(np.uint8)
         coupled = coupling is not None
-        for name, vector in STEP_FIELDS[:None if coupled else 1]:
+        for name, vector in STEP_FIELDS[:None if coupled else 2]:
             p.add_field(name, (dim,) if vector else (), np.float64 if vector else np.int64)
         solid = coupling.scale if coupled else np.zeros(len(fluid))
         if coupled:
@@ -547,9 +545,11 @@ class IISPH:
                                         indices, h, d, dim, mu, push,
                                         np.full(len(fluid), -1.0))
         p["v"][:n][own_fluid] = vnew[own_fluid]
-        grad = vnew = corr = moving = None  # not held through the viscous solve (24 B/p each)
+        grad = vnew = corr = moving = vs = None  # not held through the viscous solve
         t_asm += time.perf_counter() - t0
         if first:  # the viscous solve on the projected velocity, the new p in eq. (40)
+            for name, _ in STEP_FIELDS[1:]:
+                p.data.pop(name, None)
             t0 = time.perf_counter()
             self._viscosity(ctx, gamma, fluid[:n])
             t_asm += time.perf_counter() - t0
