@@ -20,7 +20,6 @@ import numpy as np
 
 from decomposition.numbering import global_offset
 from decomposition.reduce import global_any
-from parsph.core import heap
 from solvers import petsc_env
 from solvers.errors import SolverError, agree
 from solvers.matrix import MatrixAssembly
@@ -362,9 +361,6 @@ class LinearSystem(MatrixAssembly):
             self._x.setArray(x0.reshape(-1))
         self._ksp.setInitialGuessNonzero(x0 is not None)
         self.fresh_setup = self._pc_age == 0
-        # before the set-up's and the Krylov method's allocations: the heap's free pages
-        # would otherwise stay resident beside them (the peak RSS of a large run)
-        heap.release_free_pages(self.n_local_rows)
         start = time.perf_counter()
         if self.fresh_setup:
             self._ksp.solve(self._b, self._x)

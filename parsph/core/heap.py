@@ -1,21 +1,23 @@
-"""The heap's free pages handed back to the operating system between the parts of a step.
+"""The heap's free pages handed back to the operating system where a step's peak is made.
 
 glibc keeps the memory a program frees in its heap for later allocations; inside the
 heap, away from its top, such free memory stays resident. A step frees and allocates
 hundreds of bytes per particle (lists, work arrays, the last solve's vectors), in sizes
 that change from step to step, so the free but resident part of the heap grows beside
-the live data, and the peak resident size is set by it when the solves allocate theirs
-(BoomerAMG's set-up, the Krylov vectors). ``malloc_trim(0)`` returns every whole free
-page of the heap to the system (``madvise``); a later allocation that reuses such a page
-gets a fresh one from the kernel.
+the live data, and the peak resident size is set by it when a large allocation comes
+(the PPE's hypre matrix and AMG set-up, a checkpoint). ``malloc_trim(0)`` returns every
+whole free page of the heap to the system (``madvise``); a later allocation that reuses
+such a page gets a fresh one from the kernel, which costs a page fault.
 
-Measured on the 3D coupled tank of ``jobs/bench_memory.py`` (docs/performance.md): peak
-RSS per particle 2,105 -> 2,014 bytes at 996,454 particles on 2 ranks, 2,024 -> 1,935-1,970
-at 112,761 on one. A call costs 0.3-2 ms there; with a small heap it is mostly the system
-call's own cost (65 us in a 2D step of 262 particles, a twentieth of the step), so it is
-made only for at least :data:`MIN_ROWS` rows on the rank. Callers: the step loop before
-the step's migration, halo and lists (:mod:`parsph.step.run`) and before a checkpoint,
-and :mod:`solvers` before a solve and around the making of a hypre matrix.
+Callers: :mod:`solvers` around the making of a hypre matrix for a fresh AMG set-up, and
+:mod:`parsph.step.run` before a checkpoint. Measured on the 3D coupled tank of
+``jobs/bench_memory.py`` (docs/performance.md): peak RSS per particle 2,023 -> 1,850 bytes
+at 112,761 particles on one rank. Called also before every step's lists, at the start
+of the fluid step and before every solve, it saved 30 bytes more at 996,454 particles on
+two ranks but made the fluid-only 3D dam break of ``jobs/bench_splishsplash.py`` 8 %
+slower (the pages faulted in again each step). A call costs 0.3-2 ms there; with a small
+heap it is mostly the system call's own (65 us in a 2D step of 262 particles), so it is
+made only for at least :data:`MIN_ROWS` rows on the rank.
 """
 from __future__ import annotations
 

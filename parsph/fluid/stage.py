@@ -36,7 +36,6 @@ from decomposition.numbering import global_offset
 from decomposition.reduce import global_any, global_max, global_min, global_reduce, global_sum
 from parsph.fluid import assembly, response, rheology, viscous
 from parsph.fluid.ppe import ppe_csr
-from parsph.core import heap
 from parsph.core.contact import wall_contact
 from parsph.fluid.walls import wall_slip
 from parsph.scene.materials import PHASE_FLUID, PHASE_WALL
@@ -346,8 +345,6 @@ class IISPH:
         n, dim, h, d = ctx.n_owned, ctx.dim, ctx.h, ctx.d
         self._t_halo = 0.0
         t0 = time.perf_counter()
-        # what the solid's step freed goes back before the systems' arrays are made
-        heap.release_free_pages(n)
         fluid = (p["phase"] == PHASE_FLUID).astype(np.uint8)
         coupled = coupling is not None
         for name, vector in STEP_FIELDS[:None if coupled else 2]:

@@ -316,8 +316,6 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
             # a sync step: every stray particle moves to its owner and the next solves
             # set up afresh, as after a restart from here
             ctx.sync_point = at_sync_step()
-            # what the step freed goes back before the next one's lists and halo are made
-            heap.release_free_pages(ctx.n_owned)
             refresh(ctx)
             if ctx.sync_point:
                 _renew_preconditioners(stages)
