@@ -160,9 +160,11 @@ def test_bad_input_never_touches_earlier_output(tmp_path):
     assert parsph("run", scene, "--out", str(out), ranks=2).returncode == 0
     before = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
     for bad in (["--set", "run.end_time=-1"], ["--set", "bodies.0.material=x"], ["--bogus"],
-                ["--restart", str(tmp_path / "none.h5")]):
+                ["--restart", str(tmp_path / "none.h5")], ["--restart", str(out)]):
         r = parsph("run", scene, "--out", str(out), *bad, ranks=2)
         assert r.returncode == 2, r.stderr
+        if bad[-1] == str(out):  # the run directory, not its checkpoint: named in the message
+            assert "is a directory" in r.stderr and "checkpoint.h5" in r.stderr, r.stderr
     after = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
     assert after == before
 

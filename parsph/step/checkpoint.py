@@ -157,6 +157,9 @@ def _check_header(path: str, scene) -> dict:
     if not os.path.exists(path):
         raise ParsphError(f"restart file '{path}' does not exist; give the checkpoint.h5 of an "
                           f"earlier run of this scene")
+    if os.path.isdir(path):
+        raise ParsphError(f"restart file '{path}' is a directory; give the checkpoint file in "
+                          f"it, e.g. --restart {os.path.join(path, 'checkpoint.h5')}")
     try:
         with h5py.File(path, "r") as f:
             attrs = dict(f.attrs)
