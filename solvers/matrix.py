@@ -306,7 +306,7 @@ class MatrixAssembly:
             self._pmat.destroy()
             self._pmat = None
         if drop > 0.0 and self._pc_age == 0:  # before the split in place below
-            # the copy and hypre's conversion of it are the PPE's largest allocations
+            # the copy and hypre's matrix made of it are the PPE's largest allocations
             heap.release_free_pages(self.n_local_rows)
             ptr, c, _ = arrays
             sparse = (np.empty_like(ptr), np.empty_like(c), np.empty(c.size))

@@ -67,36 +67,33 @@ def reachable_cells(flag_s, ncell, reach, sparse, start):
     (every particle is searched)."""
     if sparse:
         return np.zeros(0, dtype=np.uint8)
-    n0, n1, n2 = ncell[0], ncell[1], ncell[2]
-    occ = np.zeros(n0 * n1 * n2, dtype=np.uint8)
+    occ = np.zeros(ncell[0] * ncell[1] * ncell[2], dtype=np.uint8)
     for c in range(occ.shape[0]):
         for t in range(start[c], start[c + 1]):
             if flag_s[t]:
                 occ[c] = 1
                 break
-    grow = np.zeros_like(occ)
-    for a in range(n0):  # dilated by reach along the last axis, then the middle, the first
-        for b in range(n1):
-            base = (a * n1 + b) * n2
-            for c in range(n2):
-                if occ[base + c]:
-                    for e in range(max(c - reach, 0), min(c + reach, n2 - 1) + 1):
-                        grow[base + e] = 1
-    occ[:] = 0
-    for a in range(n0):
-        for b in range(n1):
-            for c in range(n2):
-                if grow[(a * n1 + b) * n2 + c]:
-                    for e in range(max(b - reach, 0), min(b + reach, n1 - 1) + 1):
-                        occ[(a * n1 + e) * n2 + c] = 1
-    grow[:] = 0
-    for a in range(n0):
-        for b in range(n1):
-            for c in range(n2):
-                if occ[(a * n1 + b) * n2 + c]:
-                    for e in range(max(a - reach, 0), min(a + reach, n0 - 1) + 1):
-                        grow[(e * n1 + b) * n2 + c] = 1
-    return grow
+    # dilated by reach along the last axis, then the middle, then the first
+    for axis in (2, 1, 0):
+        occ = _dilated(occ, ncell, reach, axis)
+    return occ
+
+
+@njit(cache=True)
+def _dilated(occ, ncell, reach, axis):
+    """The cell flags ``occ`` of the dense grid spread to the cells within ``reach`` of a
+    flagged one along ``axis`` (a new array)."""
+    out = np.zeros_like(occ)
+    n = ncell[axis]
+    stride = 1
+    for b in range(axis + 1, 3):
+        stride *= ncell[b]
+    for c in range(occ.shape[0]):
+        if occ[c]:
+            k = (c // stride) % n
+            for e in range(max(k - reach, 0), min(k + reach, n - 1) + 1):
+                out[c + (e - k) * stride] = 1
+    return out
 
 
 @njit(cache=True, inline="always")

@@ -243,8 +243,9 @@ class TLSPH:
             # with empty lists)
             indptr, indices = build_cross_csr(p["x"][:n][rows], xw, ctx.radius)
             lengths = np.diff(indptr)
-            rows = rows[lengths > 0]
-            indptr = np.concatenate([[0], np.cumsum(lengths[lengths > 0])])
+            touch = lengths > 0
+            rows = rows[touch]
+            indptr = np.concatenate([[0], np.cumsum(lengths[touch])])
             xall = np.concatenate([p["x"][:n][rows], xw])
             indices += np.int32(len(rows))  # into xall: the walls after the solids
             wall = np.zeros(len(xall), dtype=np.uint8)
