@@ -502,6 +502,23 @@ def proximity_halo(comm, x_owned, select, radius: float, lo, hi, box=None) -> Ha
                                 n_owned=len(x))
 
 
+@njit(cache=True)
+def _kind_bounds(x, solid, fluid):
+    """Per-axis bounds ``(lo, hi)``, each (3, dim), of the fluid rows, the other rows
+    (walls) and the solid rows of ``x``, in one pass (``inf``, ``-inf`` where a kind has
+    none): three masked copies and their reductions had cost 2.8 ms of a 3D coupled
+    step on 2 ranks."""
+    n, dim = x.shape
+    lo = np.full((3, dim), np.inf)
+    hi = np.full((3, dim), -np.inf)
+    for i in range(n):
+        k = 0 if fluid[i] else (2 if solid[i] else 1)
+        for a in range(dim):
+            lo[k, a] = min(lo[k, a], x[i, a])
+            hi[k, a] = max(hi[k, a], x[i, a])
+    return lo, hi
+
+
 def coupled_halo(comm, x_owned, solid, fluid, radius: float, box=None) -> Halo:
     """Collective: the current-configuration halo of a coupled scene (mixed layout).
 
@@ -533,13 +550,11 @@ def coupled_halo(comm, x_owned, solid, fluid, radius: float, box=None) -> Halo:
     fluid = np.asarray(fluid, dtype=bool)
     dim = x.shape[1] if x.ndim == 2 else 0
 
-    def bbox(mask):
-        pts = x[mask]
-        if len(pts) == 0 or radius < 0:
-            return np.full(dim, np.inf), np.full(dim, -np.inf)
-        return pts.min(axis=0), pts.max(axis=0)
-
-    boxes = comm.allgather((bbox(fluid), bbox(~solid & ~fluid), bbox(solid)))
+    if radius < 0:
+        lo, hi = np.full((3, dim), np.inf), np.full((3, dim), -np.inf)
+    else:
+        lo, hi = _kind_bounds(x.reshape(len(x), dim), solid, fluid)
+    boxes = comm.allgather(tuple((lo[k], hi[k]) for k in range(3)))
     # every row near either box of each rank; to itself only the periodic images
     periodic = box is not None and box.any_periodic
     send, shift = _image_send_lists(comm, x, [list(b) for b in boxes], radius,
