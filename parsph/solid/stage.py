@@ -177,11 +177,13 @@ class TLSPH:
         lap = lap4 = none = np.empty((0, 3))
         if eps2 > 0.0 or eps4 > 0.0:
             lap = p["lapv"]
-            kernels.laplacian(v3, x3, p["m"], p["rho0"], fp, *args, ctx.h, dim, lap)
+            coef = np.empty(len(ctx.indices) if eps4 > 0.0 else 0)  # the pairs' kernel terms
+            kernels.laplacian(v3, x3, p["m"], p["rho0"], fp, *args, ctx.h, dim, lap, coef)
             if eps4 > 0.0:
                 ctx.update_halo(["lapv"])
                 lap4 = np.zeros((n, 3))
-                kernels.laplacian(lap, x3, p["m"], p["rho0"], fp, *args, ctx.h, dim, lap4)
+                kernels.laplacian_stored(lap, x3, coef, *args, lap4)
+            coef = None
         g = np.asarray(ctx.body_acceleration(ctx.time), dtype=float)[:dim]
         kernels.kick(p["v"], acc, lap, lap4, g, none if extra is None else extra, sel, n, dt,
                      cp * ctx.d, eps2, ctx.d ** 2 * eps4, dim)
