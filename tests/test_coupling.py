@@ -141,6 +141,43 @@ def test_block_in_water_feels_its_buoyancy(comm, mpi_tmp_path):
         assert np.abs(f["v"][f["phase"] == 1]).max() < 0.05  # water at rest
 
 
+#: A free elastic block falling into a water pool (the JST terms of a moving solid).
+BLOCK_INTO_WATER = scene_text(
+    "block_into_water", 0.025, [-0.2, -0.2], [1.2, 1.3], 0.04, 0.04, g=G_2D,
+    materials={"water": water(), "block": hencky(1500.0, 1.0e5)},
+    bodies=[box("water", "water", [0.0, 0.0], [1.0, 0.6]),
+            box("block", "block", [0.4, 0.625], [0.6, 0.825], velocity=[0.0, -1.0])],
+    walls=[tank("tank", [0.0, 0.0], [1.0, 1.2])])
+
+
+def test_solid_scratch_in_the_fluids_idle_memory_changes_nothing(comm, mpi_tmp_path,
+                                                                   monkeypatch):
+    """The TLSPH predictor's scratch (the JST pair terms) lives in the memory of the
+    fluid's matrices between the fluid's steps (WorkArrays.idle): the run equals, bit for
+    bit, one that allocates it afresh, and the memory was lent."""
+    from parsph.io import read_frame, read_frames
+    from tests.scenes import by_id
+
+    lent = []
+    idle = assembly.WorkArrays.idle
+    monkeypatch.setattr(assembly.WorkArrays, "idle",
+                        lambda self, size: lent.append(idle(self, size) is not None) or
+                        idle(self, size))
+    scene = load_shared(comm, mpi_tmp_path, BLOCK_INTO_WATER)
+    outs = [os.path.join(mpi_tmp_path, name) for name in ("lent", "fresh")]
+    run(scene, outs[0], comm=comm, progress=False)
+    assert comm.allreduce(int(any(lent))) > 0
+    monkeypatch.setattr(assembly.WorkArrays, "idle", lambda self, size: None)
+    run(scene, outs[1], comm=comm, progress=False)
+    if comm.rank == 0:
+        step = read_frames(outs[0])[-1][0]
+        a, b = (by_id(read_frame(out, step)) for out in outs)
+        assert step > 5 and (a["phase"] == 0).sum() > 0
+        assert np.abs(a["v"][a["phase"] == 0]).max() > 0.5  # the block moves
+        for name in ("x", "v", "p"):
+            assert np.array_equal(a[name], b[name]), name
+
+
 @pytest.mark.one_rank  # the one-rank session only (CI time: the 2-rank one is the longer)
 def test_fluid_does_not_pass_through_a_tlsph_floor(comm, mpi_tmp_path):
     """A water column collapses along a held TLSPH plate that is its only floor and hits

@@ -78,6 +78,9 @@ class Coupled:
         for name in VIEW_FIELDS:  # but these live in the solid's view only
             ctx.particles.data.pop(name, None)
         self.fluid = IISPH(ctx)  # adds the fluid fields
+        # the solid's predictor runs between the fluid's steps: its scratch in the memory of
+        # the fluid's matrices, idle then
+        self.solid.scratch = self.fluid.buffers.idle
         ctx.particles.add_field("fluidised", dtype=np.uint8)
         ctx.particles.add_field("ref_count0", dtype=np.int32)  # initial reference neighbours
         # the fluid's force on each solid particle in the last coupled step (N, N/m in 2D):

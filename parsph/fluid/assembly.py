@@ -64,6 +64,16 @@ class WorkArrays:
             a = self._sets[key] = np.empty(int(1.1 * size) + 1)
         return a[:size]
 
+    def idle(self, size):
+        """``size`` float64 values of memory that holds nothing between two steps: the
+        values of the default CSR set (the PPE's and the viscous preconditioner's storage,
+        written afresh by every step before its solves), or None when it is smaller. A
+        stage that runs between the fluid's steps (the TLSPH predictor of a coupled step)
+        borrows it for its scratch instead of raising the peak by as much
+        (:meth:`parsph.solid.stage.TLSPH.predict`)."""
+        vals = self._sets.get("csr", (None, None, None))[2]
+        return vals[:size] if vals is not None and vals.size >= size else None
+
     def drop(self, key) -> None:
         """Free the set ``key`` (if any)."""
         self._sets.pop(key, None)

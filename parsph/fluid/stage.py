@@ -145,7 +145,7 @@ class IISPH:
         self.les = self.num.smagorinsky * self.num.les_width * ctx.h
         self._ppe = self._visc = None
         self._ppe_ids = None  # the particles of the PPE's rows at its last assembly
-        self._buffers = assembly.WorkArrays()
+        self.buffers = assembly.WorkArrays()  # kept from step to step, idle between steps
         self._n_rows = -1
         self._dt_cfl = 0.0
         self._stats = {k: 0.0 for k in STATS}
@@ -275,7 +275,7 @@ class IISPH:
             rhs = self._viscous_operator(ctx, visc, order, dt, g, morris, m, row, indptr,
                                          indices, fluid, solid)
         else:
-            ptr, cols, vals = self._buffers.csr(visc, assembly.csr_capacity(
+            ptr, cols, vals = self.buffers.csr(visc, assembly.csr_capacity(
                 fluid, solid, row, indptr, dim, not morris))
             nnz, rhs = viscous.viscous_csr(
                 p["x"], p["v"], m, p["rho"], p["nu"], fluid, solid, p["wall_slip"], row,
@@ -303,15 +303,15 @@ class IISPH:
         Returns the right-hand side (owned, (n, dim))."""
         p, n, dim, h = ctx.particles, ctx.n_owned, ctx.dim, ctx.h
         first = visc.offset // dim
-        ptr, cols, vals = self._buffers.csr(visc.scalar, assembly.csr_capacity(
+        ptr, cols, vals = self.buffers.csr(visc.scalar, assembly.csr_capacity(
             fluid, solid, row, indptr, 1, False))
         at = np.zeros(n, dtype=np.int64)
         size = viscous.pair_offsets(order, fluid, solid, p["wall_slip"], indptr, indices, at)
         if self._jacobi and size <= vals.size:  # no matrix to write: the coefficients in
             coef = vals[:size]  # the memory of the PPE's, whose solve is done (227 B/p in 3D)
-            self._buffers.drop("visc_coef")
+            self.buffers.drop("visc_coef")
         else:
-            coef = self._buffers.floats("visc_coef", size)
+            coef = self.buffers.floats("visc_coef", size)
         kind = np.full(n, 3, dtype=np.int8)
         x = p["x"]
         diag = np.empty(order.size if self._jacobi else 0)
@@ -444,7 +444,7 @@ class IISPH:
         # rescaled so the correction is per CFL step
         alpha = self.num.alpha * min(1.0, (dt / self._dt_cfl) ** 2) if self._dt_cfl > 0 \
             else self.num.alpha
-        ptr, cols, vals = self._buffers.csr(ppe, assembly.csr_capacity(
+        ptr, cols, vals = self.buffers.csr(ppe, assembly.csr_capacity(
             fluid, solid, row, indptr, 1, False))
         expansion = self.num.density_correction == "both" or (
             self.num.density_correction == "auto" and not confined)
@@ -452,7 +452,7 @@ class IISPH:
             x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt, alpha, d,
             self.num.ppe_laplacian == "corrected", expansion, ppe.offset, ptr, cols, vals)
         if coupled:  # the solid-response term (strong coupling, docs/coupling.md)
-            near = self._buffers.csr(ppe, response.near_capacity(
+            near = self.buffers.csr(ppe, response.near_capacity(
                 fluid, free, solid, row, indptr, indices, ppe.offset, ptr), key="near")
             n_near = response.add_near_response(
                 x, m, rho, rho0, fluid, free, solid, row, p["inv_mass"], p["a_self"], indptr,

@@ -64,6 +64,8 @@ class TLSPH:
              for w in ctx.scene.walls] + [self.num.wall_friction])
         self.failure_fluidises = False  # set by the coupled stage (phase change)
         self.failed = np.zeros(0, dtype=np.int64)  # rows that failed in the last step
+        #: size -> float64 memory idle during predict() or None (set by a coupled stage)
+        self.scratch = lambda size: None
         self.stats_columns = ("solid_plastic", "solid_contacts", "elastic_energy")
         if self.num.triaxial_csv:
             self.stats_columns += TRIAXIAL_COLUMNS
@@ -177,7 +179,10 @@ class TLSPH:
         lap = lap4 = none = np.empty((0, 3))
         if eps2 > 0.0 or eps4 > 0.0:
             lap = p["lapv"]
-            coef = np.empty(len(ctx.indices) if eps4 > 0.0 else 0)  # the pairs' kernel terms
+            # the pairs' kernel terms (456 B per 3D particle: in idle memory if there is)
+            size = len(ctx.indices) if eps4 > 0.0 else 0
+            coef = self.scratch(size)
+            coef = np.empty(size) if coef is None else coef
             kernels.laplacian(v3, x3, p["m"], p["rho0"], fp, *args, ctx.h, dim, lap, coef)
             if eps4 > 0.0:
                 ctx.update_halo(["lapv"])
