@@ -360,7 +360,7 @@ def _near_ranks(lo_all, hi_all, me, radius, shifts):
     return near_ranks, n_near
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _gap2(y, lo, hi):
     """Squared distance (m^2) from point ``y`` to the closed box ``[lo, hi]``."""
     g2 = 0.0
@@ -370,7 +370,7 @@ def _gap2(y, lo, hi):
     return g2
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _geometric_pattern(x, radius, my_lo, my_hi, lo_all, hi_all, glo, ghi, shifts, near_ranks,
                        n_near):
     """The send list of :meth:`Halo.build` in one pass over the owned rows (numba):
@@ -426,7 +426,7 @@ def _box_images(box, dim):
     return box.image_shifts()
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _near_boxes(x, shift, lo, hi, radius):
     """Rows whose image ``x + shift`` lies within ``radius`` of any box ``[lo[b], hi[b]]``
     (one pass over the rows; an empty box, lo > hi on an axis, is near nothing)."""
@@ -502,7 +502,7 @@ def proximity_halo(comm, x_owned, select, radius: float, lo, hi, box=None) -> Ha
                                 n_owned=len(x))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _kind_bounds(x, solid, fluid):
     """Per-axis bounds ``(lo, hi)``, each (3, dim), of the fluid rows, the other rows
     (walls) and the solid rows of ``x``, in one pass (``inf``, ``-inf`` where a kind has

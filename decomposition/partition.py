@@ -70,7 +70,7 @@ def _lex_less(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return less
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _descend(x, axis, cut, child, rank, out):
     """Owner of each row of ``x``: walk the tree from the root, at each inner node
     comparing the point with the cut lexicographically from the node's axis on (the

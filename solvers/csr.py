@@ -23,7 +23,7 @@ def sort_neighbours_by_row(indptr, indices, row, inplace=False):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _sort_by_row(indptr, out, row):
     """Stable sort of each list of ``out`` by ``row``: a natural merge sort, one pass
     per doubling of its ascending runs, with a scratch of the longest list (in L1).
@@ -94,7 +94,7 @@ def _sort_by_row(indptr, out, row):
             out[start + q] = va[q]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def check_block(cols, vals):
     """``(smallest column, largest column, number of non-finite values)`` of a CSR block
     in one branch-free pass each (numpy's ``min``, ``max`` and ``isfinite().all()`` read
@@ -111,7 +111,7 @@ def check_block(cols, vals):
     return lo, hi, bad
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def count_diagonal(cols, first, stop):
     """Entries of a CSR block with their column in ``[first, stop)``: the size of the
     diagonal part :func:`split_diagonal_block` writes (the rest is the off-diagonal)."""
@@ -122,7 +122,7 @@ def count_diagonal(cols, first, stop):
     return p
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def row_block_counts(indptr, cols, first, stop, d, o):
     """Per row of a CSR block, its entries with the column in ``[first, stop)`` (into
     ``d``) and the others (into ``o``): the preallocation of a hypre matrix."""
@@ -135,7 +135,7 @@ def row_block_counts(indptr, cols, first, stop, d, o):
         o[i] = indptr[i + 1] - indptr[i] - n_d
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def split_diagonal_block(indptr, cols, vals, first, stop, di, dj, dv, oi, oj, ov, pattern):
     """Split the CSR block of a rank's rows into its diagonal part (columns in
     ``[first, stop)``, renumbered from 0) and its off-diagonal part (global columns), as
@@ -177,7 +177,7 @@ def split_diagonal_block(indptr, cols, vals, first, stop, di, dj, dv, oi, oj, ov
     return p, q
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def split_in_place(indptr, cols, vals, first, stop, oi, oj, ov):
     """:func:`split_diagonal_block` with the diagonal part written over the block itself:
     ``indptr`` becomes its row pointers and the front of ``cols`` (renumbered from 0)
@@ -187,7 +187,7 @@ def split_in_place(indptr, cols, vals, first, stop, oi, oj, ov):
                                 ov, cols)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def sparsify(indptr, cols, vals, first, theta, out_ptr, out_cols, out_vals):
     """A sparser copy of a CSR block (rows ``first, first + 1, ...``, global columns) for
     a preconditioner: each row keeps its diagonal and the off-diagonal entries of at
@@ -222,7 +222,7 @@ def sparsify(indptr, cols, vals, first, theta, out_ptr, out_cols, out_vals):
     return k
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def unit_diagonal(indptr, cols, vals, first):
     """Scale each row of a CSR block (rows ``first, first + 1, ...``, global columns) in
     place so that its diagonal is 1; returns the scale ``1 / diagonal`` of every row
@@ -247,7 +247,7 @@ def unit_diagonal(indptr, cols, vals, first):
     return scale
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def scale_rows(indptr, vals, scale):
     """Multiply row ``r`` of a CSR block by ``scale[r]`` in place."""
     for r in range(indptr.shape[0] - 1):

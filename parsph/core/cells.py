@@ -21,7 +21,7 @@ _MAX_CELLS_PER_AXIS = 1 << 50
 _REACH = 1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _bounds(x):
     """Per-axis minimum and maximum of ``x`` and whether all entries are finite."""
     n, dim = x.shape
@@ -43,7 +43,7 @@ def _bounds(x):
     return lo, hi, finite
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def masked_bounds(x, mask):
     """Per-axis minimum and maximum of the rows of ``x`` with ``mask`` set (``inf`` and
     ``-inf`` if none), without the copy ``x[mask]`` makes."""
@@ -58,7 +58,7 @@ def masked_bounds(x, mask):
     return lo, hi
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def reachable_cells(flag_s, ncell, reach, sparse, start):
     """Per cell of the dense grid (linear id, as :func:`_ranges` numbers them): 1 when a
     slot with ``flag_s`` set lies in the cells within ``reach`` cells of it along every
@@ -79,7 +79,7 @@ def reachable_cells(flag_s, ncell, reach, sparse, start):
     return occ
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _dilated(occ, ncell, reach, axis):
     """The cell flags ``occ`` of the dense grid spread to the cells within ``reach`` of a
     flagged one along ``axis`` (a new array)."""
@@ -96,7 +96,7 @@ def _dilated(occ, ncell, reach, axis):
     return out
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def cell_of(x, i, lo, inv_cell, ncell):
     """Linear id of the dense-grid cell of the padded position ``x[i]`` (as
     :func:`_pad_coords` and :func:`_ranges` compute it)."""
@@ -121,7 +121,7 @@ def _cell_size(radius, extent, reach):
     return max(radius * (1.0 + delta) / reach, extent / float(_MAX_CELLS_PER_AXIS - 2))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _pad_coords(x, lo, inv_cell, ncell):
     """Padded (N, 3) positions and clamped integer (N, 3) cell coordinates.
 
@@ -141,7 +141,7 @@ def _pad_coords(x, lo, inv_cell, ncell):
     return xp, cc
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _sort_dense(x, lo, inv_cell, ncell):
     """Counting sort by linear cell id over the dense grid, the positions padded to 3 axes
     and binned as :func:`_pad_coords` does, without its (N, 3) copies (48 bytes per row
@@ -206,7 +206,7 @@ def _sort_sparse(xp, cc):
     return order.astype(np.int32), rank_of, xs, cells, cell_start
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _lex_less(cells, u, a, b, c):
     """Whether occupied cell ``u`` precedes the coordinate triple (a, b, c)."""
     if cells[u, 0] != a:
@@ -216,7 +216,7 @@ def _lex_less(cells, u, a, b, c):
     return cells[u, 2] < c
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _lower_bound(cells, a, b, c):
     """First occupied cell not preceding (a, b, c) (binary search)."""
     lo = 0
@@ -230,7 +230,7 @@ def _lower_bound(cells, a, b, c):
     return lo
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _ranges(xs, s, lo, inv_cell, ncell, reach, sparse, start, cells, cell_start, gap2, rng):
     """Slot ranges holding every possible neighbour of slot ``s``; returns their number.
 

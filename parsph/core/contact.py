@@ -18,7 +18,7 @@ from parsph.core.kernel import fac_grad, w
 __all__ = ["wall_contact"]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def wall_contact(x, v, rows, vrows, wall, vw, indptr, indices, h, d, dim, mu, push, mu_w):
     r"""Non-penetration and Coulomb friction against boundary particles, in place on ``v``.
 

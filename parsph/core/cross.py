@@ -73,7 +73,7 @@ def build_cross_csr(xq, xt, radius):
     return indptr, indices
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _cross_pass(qp, xs, order, r2max, lo, inv_cell, ncell, reach, sparse, start, cells,
                 cell_start, indptr, indices, near, fill):
     """The count pass (``fill`` False: ``indptr`` from the number of targets within reach

@@ -23,7 +23,7 @@ from parsph.core.kernel import normalisation, w
 __all__ = ["density_summation"]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _density(x, m, indptr, indices, h, dim, out):
     n_query = indptr.shape[0] - 1
     w0 = normalisation(h, dim)  # W(0, h)

@@ -130,7 +130,7 @@ def support_radius(h: float) -> float:
     return SUPPORT_OVER_H * h
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def normalisation(h, dim):
     r"""Normalisation constant :math:`\sigma_D` of the cubic spline.
 
@@ -160,7 +160,7 @@ def normalisation(h, dim):
     raise ValueError("kernel dimension must be 1, 2 or 3")
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def w(r, h, dim):
     r"""Cubic spline kernel value :math:`W(r, h)`.
 
@@ -187,7 +187,7 @@ def w(r, h, dim):
     return 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def dw_dr(r, h, dim):
     r"""Radial derivative :math:`\partial W / \partial r` of the cubic spline.
 
@@ -214,7 +214,7 @@ def dw_dr(r, h, dim):
     return 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def fac_grad(r, h, dim):
     r"""Gradient factor :math:`F = (\partial W/\partial r) / r`.
 
@@ -246,7 +246,7 @@ def fac_grad(r, h, dim):
     return 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _eval_array(r, h, dim, which):
     out = np.empty(r.shape[0])
     for k in range(r.shape[0]):
@@ -297,14 +297,14 @@ def fac_grad_array(r, h, dim):
     return _array_call(r, h, dim, 2)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def constants(h, dim):
     r"""The per-loop constants of the ``_k`` functions: :math:`(1/h, \sigma_D, \sigma_D/h^2)`."""
     s = normalisation(h, dim)
     return 1.0 / h, s, s / (h * h)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def w_k(r, k):
     """:func:`w` with the constants ``k`` of :func:`constants` (no division)."""
     q = r * k[0]
@@ -316,7 +316,7 @@ def w_k(r, k):
     return 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def fac_grad_k(r, k):
     r""":func:`fac_grad` with the constants ``k`` of :func:`constants`: one division, by
     :math:`q`, on the outer branch (:math:`\sigma_D h^{-2} (-\tfrac34 (2 - q)^2) / q`)."""
@@ -329,7 +329,7 @@ def fac_grad_k(r, k):
     return 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def w_and_fac_grad_k(r, k):
     """``(W, F)`` of one distance, sharing q (density and its gradient in one pass)."""
     q = r * k[0]
@@ -341,7 +341,7 @@ def w_and_fac_grad_k(r, k):
     return 0.0, 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def delta(x, i, j, dim):
     r"""``(d0, d1, d2, r2)``: :math:`\mathbf x_i - \mathbf x_j` of rows ``i``, ``j`` of an
     (N, dim) array as three scalars (``d2 = 0`` in 2D) and its squared length, summed

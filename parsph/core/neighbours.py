@@ -65,7 +65,7 @@ _GATHER_MIN_PAIRS = 1 << 24
 _GATHER_DISORDER = 0.08
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _count(xs, order, n_query, r2max, lo, inv_cell, ncell, reach, sparse, start, cells,
            cell_start, indptr, act_s, wet_cells, keep, keep_s):
     """First pass, query rows in slot order: ``indptr`` from the neighbour counts.
@@ -127,7 +127,7 @@ def _count(xs, order, n_query, r2max, lo, inv_cell, ncell, reach, sparse, start,
         indptr[i + 1] += indptr[i]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _fill(xs, order, rank_of, n_query, r2max, lo, inv_cell, ncell, reach, sparse, start,
           cells, cell_start, indptr, indices, keep, kept, kept_cells):
     """Second pass, all rows ``j`` in ascending order: append ``j`` to its query rows.
@@ -190,7 +190,7 @@ def _fill(xs, order, rank_of, n_query, r2max, lo, inv_cell, ncell, reach, sparse
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _fill_gather(xs, order, n_query, r2max, lo, inv_cell, ncell, reach, sparse, start,
                  cells, cell_start, indptr, indices, keep):
     """Second pass, query rows in slot order, each row sorted (insertion sort)."""
@@ -231,7 +231,7 @@ def _fill_gather(xs, order, n_query, r2max, lo, inv_cell, ncell, reach, sparse, 
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _disorder(order):
     """Mean |row difference| of consecutive slots over the row count (0 = coherent)."""
     n = order.shape[0]

@@ -41,14 +41,14 @@ _TWO_PI_3 = 2.0 * math.pi / 3.0
 _RESIDUAL_TOL = 1e-10
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _sym6(A):
     """Symmetric part of a 3x3 array as the tuple (a00, a11, a22, a01, a02, a12)."""
     return (A[0, 0], A[1, 1], A[2, 2],
             0.5 * (A[0, 1] + A[1, 0]), 0.5 * (A[0, 2] + A[2, 0]), 0.5 * (A[1, 2] + A[2, 1]))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _jacobi6(a00, a11, a22, a01, a02, a12):
     """Cyclic Jacobi eigen-solver (fall-back); same tuple layout as :func:`_eig6`."""
     a = np.empty((3, 3))
@@ -94,7 +94,7 @@ def _jacobi6(a00, a11, a22, a01, a02, a12):
                    v[0, 0], v[1, 0], v[2, 0], v[0, 1], v[1, 1], v[2, 1], v[0, 2], v[1, 2], v[2, 2])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _sorted(l0, l1, l2, x0, y0, z0, x1, y1, z1, x2, y2, z2):
     """Sort three eigenpairs by ascending eigenvalue (vectors follow their values)."""
     if l0 > l1:
@@ -109,7 +109,7 @@ def _sorted(l0, l1, l2, x0, y0, z0, x1, y1, z1, x2, y2, z2):
     return (l0, l1, l2, x0, y0, z0, x1, y1, z1, x2, y2, z2)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _eig6(a00, a11, a22, a01, a02, a12):
     """Eigen-decomposition of a symmetric 3x3 matrix given by its 6 components.
 
@@ -231,7 +231,7 @@ def _eig6(a00, a11, a22, a01, a02, a12):
                    vx, vy, vz, e1x, e1y, e1z, e2x, e2y, e2z)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _recon6(f0, f1, f2, e):
     """Components (s00, s11, s22, s01, s02, s12) of sum_k f_k v_k v_k^T for ``e = _eig6(...)``."""
     x0, y0, z0, x1, y1, z1, x2, y2, z2 = e[3], e[4], e[5], e[6], e[7], e[8], e[9], e[10], e[11]
@@ -243,7 +243,7 @@ def _recon6(f0, f1, f2, e):
             f0 * y0 * z0 + f1 * y1 * z1 + f2 * y2 * z2)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _store6(s, out):
     """Write 6 symmetric components into a 3x3 array."""
     out[0, 0] = s[0]
@@ -254,7 +254,7 @@ def _store6(s, out):
     out[1, 2] = out[2, 1] = s[5]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _congruence6(F, s):
     """Components of the symmetric product F S F^T, S given by 6 components."""
     s00, s11, s22, s01, s02, s12 = s
@@ -276,7 +276,7 @@ def _congruence6(F, s):
             t10 * F[2, 0] + t11 * F[2, 1] + t12 * F[2, 2])
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def eigh3(A):
     """Eigen-decomposition of a symmetric 3x3 matrix.
 
@@ -302,7 +302,7 @@ def eigh3(A):
     return w, V
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def eigh3_into(A, w, V):
     """:func:`eigh3` writing into ``w`` (3,) and ``V`` (3, 3); returns nothing."""
     e = _eig6(*_sym6(A))
@@ -313,7 +313,7 @@ def eigh3_into(A, w, V):
         V[2, k] = e[5 + 3 * k]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def eigh3_jacobi(A):
     """Eigen-decomposition by cyclic Jacobi rotations (the fall-back path), as :func:`eigh3`."""
     e = _jacobi6(*_sym6(A))
@@ -327,7 +327,7 @@ def eigh3_jacobi(A):
     return w, V
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def logm_spd_into(A, out):
     """Tensor logarithm of a symmetric positive-definite 3x3 matrix, into ``out``.
 
@@ -337,7 +337,7 @@ def logm_spd_into(A, out):
     _store6(_recon6(math.log(e[0]), math.log(e[1]), math.log(e[2]), e), out)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def logm_spd(A):
     """Tensor logarithm ``ln A`` of a symmetric positive-definite 3x3 matrix (eq. (15)).
 
@@ -356,14 +356,14 @@ def logm_spd(A):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def expm_sym_into(A, out, scale=1.0):
     """Tensor exponential ``exp(scale * A)`` of a symmetric 3x3 matrix, into ``out``."""
     e = _eig6(*_sym6(A))
     _store6(_recon6(math.exp(scale * e[0]), math.exp(scale * e[1]), math.exp(scale * e[2]), e), out)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def expm_sym(A, scale=1.0):
     """Tensor exponential ``exp(scale * A)`` of a symmetric 3x3 matrix (eq. (22)).
 
@@ -384,7 +384,7 @@ def expm_sym(A, scale=1.0):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def det3(A):
     """Determinant of a 3x3 matrix (e.g. J = det F)."""
     return (A[0, 0] * (A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1])
@@ -392,7 +392,7 @@ def det3(A):
             + A[0, 2] * (A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0]))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def inv3_into(A, out):
     """Inverse of a 3x3 matrix by cofactors, into ``out``; returns the determinant.
 
@@ -421,7 +421,7 @@ def inv3_into(A, out):
     return d
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def inv3(A):
     """Inverse of a 3x3 matrix (cofactors); see :func:`inv3_into`."""
     out = np.empty((3, 3))
@@ -429,7 +429,7 @@ def inv3(A):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def mean_j2(A):
     """Mean stress and second deviatoric invariant of a (symmetric) 3x3 stress.
 

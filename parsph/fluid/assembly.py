@@ -78,7 +78,7 @@ class WorkArrays:
         """Free the set ``key`` (if any)."""
         self._sets.pop(key, None)
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def density_and_surface(x, v, m, fluid, rho0, indptr, indices, h, dim, beta, gamma, rho, free):
     r"""Summation density (33) of the owned fluid rows, the free-surface flag, and which
     boundary rows the fluid touches; returns the largest :math:`|\nabla\cdot\mathbf v|`
@@ -149,7 +149,7 @@ def density_and_surface(x, v, m, fluid, rho0, indptr, indices, h, dim, beta, gam
     return max_div
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def fluid_weight_sum(x, fluid, indptr, indices, i, h, dim):
     """sum_f W(r_if, h) over the fluid neighbours f of a wall particle i (Adami et al. 2012:
     the normalisation of the wall extrapolations of velocity and pressure)."""
@@ -162,7 +162,7 @@ def fluid_weight_sum(x, fluid, indptr, indices, i, h, dim):
     return wsum
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def rows_in_order(row, n, first):
     """The owned particles of the system in the order of their rows: ``order[r]`` is the
     particle of global row ``first + r``. The stage numbers the owned rows
@@ -179,7 +179,7 @@ def rows_in_order(row, n, first):
     return order
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def csr_capacity(fluid, solid, row, indptr, dim, full):
     """Entries the CSR kernels may write for the owned rows in the system (``row >= 0``):
     ``dim`` scalar rows of ``(neighbours + 1) bw`` slots each, ``bw = dim`` for a fluid or
@@ -196,13 +196,13 @@ def csr_capacity(fluid, solid, row, indptr, dim, full):
     return total
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _vec(v, i, dim):
     """Row ``i`` of an (N, dim) array as three scalars (the third 0 in 2D)."""
     return v[i, 0], v[i, 1], v[i, 2] if dim == 3 else 0.0
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _store(out, i, dim, a0, a1, a2):
     """Write three scalars to row ``i`` of an (N, dim) array (the third only in 3D)."""
     out[i, 0] = a0
@@ -211,7 +211,7 @@ def _store(out, i, dim, a0, a1, a2):
         out[i, 2] = a2
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def pressure_gradient(x, p, m, rho, fluid, indptr, indices, h, dim):
     r"""Symmetric pressure gradient (37) of the owned fluid rows (Pa/m); 0 elsewhere.
 
@@ -237,7 +237,7 @@ def pressure_gradient(x, p, m, rho, fluid, indptr, indices, h, dim):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def has_fluid_neighbour(fluid, indptr, indices):
     """1 for the owned rows with at least one fluid neighbour (uint8)."""
     n = indptr.shape[0] - 1
@@ -250,7 +250,7 @@ def has_fluid_neighbour(fluid, indptr, indices):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def pressure_gradient_corrected(x, p, m, rho, fluid, indptr, indices, h, dim, wet=None):
     r"""Corrected pressure gradient of the owned fluid rows (Pa/m); 0 elsewhere.
 
@@ -300,7 +300,7 @@ def pressure_gradient_corrected(x, p, m, rho, fluid, indptr, indices, h, dim, we
     return out
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _solve_floored(m00, m01, m02, m11, m12, m22, s0, s1, s2, floor, dim):
     """``M^-1 s`` of a symmetric 2x2 or 3x3 ``M`` with its eigenvalues taken as at least
     ``floor`` (closed-form eigen-decomposition, no LAPACK call, no allocation)."""
@@ -320,7 +320,7 @@ def _solve_floored(m00, m01, m02, m11, m12, m22, s0, s1, s2, floor, dim):
     return out0, out1, out2
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _eig2(a, b, c):
     """Eigenvalues ``(l0, l1)`` of the symmetric ``[[a, b], [b, c]]`` and the rotation
     ``(cos, sin)`` whose columns ``(cos, sin)``, ``(-sin, cos)`` are their eigenvectors."""

@@ -49,7 +49,7 @@ def ppe_row_scale(rho, rho0, d):
     return rho * d * d / (2.0 * rho0)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def ppe_csr(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt, alpha, d,
             corrected, expansion, first, out_ptr, out_cols, out_vals):
     r"""CSR block and right-hand side of the stabilised PPE (32) with (35), (36) and the
@@ -197,7 +197,7 @@ def ppe_csr(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt, 
     return k, rhs
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _scalar_slot(cols, vals, base, t, last, col):
     """:func:`_slot` of a scalar system (one row, block size 1)."""
     if t > 0 and last == col:
@@ -207,7 +207,7 @@ def _scalar_slot(cols, vals, base, t, last, col):
     return t, t + 1, col
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _corrected(c, m, rho, j, f, s, e0, e1, e2, L, d0, d1, d2):
     """The pair coefficient ``c`` of a fluid row with the first-order correction of the
     ``corrected`` Laplacian, + 2 s e_i . L_i V_j grad W_ij, kept >= 0 (an M-matrix row).
@@ -219,7 +219,7 @@ def _corrected(c, m, rho, j, f, s, e0, e1, e2, L, d0, d1, d2):
     return max(c - 2.0 * s * m[j] / rho[j] * f * eb, 0.0)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _column_slot(cols, base, t, col):
     """Slot of column ``col`` among the sorted ``cols[base:base + t]``."""
     lo, hi = 0, t - 1
@@ -232,7 +232,7 @@ def _column_slot(cols, base, t, col):
     return lo
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _truncation_and_divergence(x, vs, m, rho, indptr, indices, i, k, dim, v0, v1, v2,
                                scratch):
     """``(ok, e0, e1, e2, L)`` of row ``i`` (``e`` = sum_j (m_j / rho_i) grad W_ij, ``L``
@@ -273,7 +273,7 @@ def _truncation_and_divergence(x, vs, m, rho, indptr, indices, i, k, dim, v0, v1
     return ok, e0, e1, e2, L, div
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _invert_sym(m00, m01, m02, m11, m12, m22, dim):
     """``(ok, (l00, l01, l02, l11, l12, l22))``: the inverse of the symmetric 2x2 (``dim`` 2,
     the ``*2`` entries ignored) or 3x3 matrix; ``ok`` False (zeros) where it is near

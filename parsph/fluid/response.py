@@ -64,7 +64,7 @@ from parsph.core.kernel import constants, delta, fac_grad_k
 __all__ = ["self_response", "response_blocks", "add_near_response", "solid_pressure_force"]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _grad(x, i, j, k, dim):
     """grad W_ij = F(r_ij) (x_i - x_j) as three scalars (the third 0 in 2D); ``k`` the
     kernel's :func:`parsph.core.kernel.constants`."""
@@ -73,14 +73,14 @@ def _grad(x, i, j, k, dim):
     return f * d0, f * d1, f * d2
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _dot(u0, u1, u2, v, i, dim):
     """(u0, u1, u2) . row ``i`` of an (N, dim) array."""
     acc = u0 * v[i, 0] + u1 * v[i, 1]
     return acc + u2 * v[i, 2] if dim == 3 else acc
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def self_response(x, m, rho, rho0, fluid, solid, inv_mass, indptr, indices, h, dim):
     r""":math:`W_s \mathbf G_{ss}` (m s^-2 Pa^-1) of the owned rows with ``solid[s] > 0``:
     the acceleration of a solid particle per unit of its own pressure, over all its fluid
@@ -108,7 +108,7 @@ def self_response(x, m, rho, rho0, fluid, solid, inv_mass, indptr, indices, h, d
     return out
 
 
-@njit(cache=True, inline="always")  # a call per pair otherwise: 2x slower
+@njit(cache=True, error_model="numpy", inline="always")  # a call per pair otherwise: 2x slower
 def _unknown(fluid, free, solid, row, j):
     """Whether row ``j`` is a pressure unknown the response couples to: an interior fluid
     row or a type-II solid row in contact with the fluid (free rows are p = 0)."""
@@ -117,7 +117,7 @@ def _unknown(fluid, free, solid, row, j):
     return fluid[j] or solid[j] > 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def response_blocks(x, m, rho, rho0, fluid, free, solid, row, inv_mass, indptr, indices, h,
                     dim, d):
     r"""The two sparse blocks ``D`` and :math:`\frac{d^2}{2} W \mathbf G` of the
@@ -205,7 +205,7 @@ def response_blocks(x, m, rho, rho0, fluid, free, solid, row, inv_mass, indptr, 
     return ptr, cols[:k], left[:k], right[:k]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def near_capacity(fluid, free, solid, row, indptr, indices, first, ptr):
     """Entries :func:`add_near_response` writes to its ``near_*`` block: the whole PPE
     row (``ptr``: rows in global order from ``first``) of each row it touches, i.e. an
@@ -230,7 +230,7 @@ def near_capacity(fluid, free, solid, row, indptr, indices, first, ptr):
     return total
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def add_near_response(x, m, rho, rho0, fluid, free, solid, row, inv_mass, a_self, indptr,
                       indices, h, dim, d, first, ptr, cols, vals, near_ptr, near_cols,
                       near_vals):
@@ -331,7 +331,7 @@ def add_near_response(x, m, rho, rho0, fluid, free, solid, row, inv_mass, a_self
     return k
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def solid_pressure_force(x, p, m, rho, rho0, fluid, solid, indptr, indices, h, dim):
     r""":math:`\sum_b \mathbf G_{sb} p_b` (N, N/m in 2D) of the owned rows with
     ``solid[s] > 0``: the fluid's pressure force on a solid particle (eq. (45)), the exact

@@ -37,7 +37,7 @@ from parsph.core.kernel import constants, delta, fac_grad_k
 __all__ = ["fluid_strain_rate", "strain_rate", "viscosity"]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _strain_rate(x, v, m, rho, fluid, slip, indptr, indices, h, dim, out):
     n = indptr.shape[0] - 1
     k = constants(h, dim)
@@ -102,7 +102,7 @@ def fluid_strain_rate(x, v, v_ghost, m, rho, fluid, solid, slip, indptr, indices
     return strain_rate(x, vel, m, rho, fluid, slip, indptr, indices, h, dim)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _viscosity(gamma, p, fluid, material, nu0, nu_max, cohesion, tan_phi, bingham, eddy,
                rho0, les, out):
     for i in range(gamma.shape[0]):

@@ -38,7 +38,7 @@ __all__ = ["viscous_csr", "viscous_pairs", "pair_offsets", "viscous_apply", "vis
 ETA2 = 0.01
 
 
-@njit(cache=True, inline="always")  # a call per pair otherwise: 2x slower
+@njit(cache=True, error_model="numpy", inline="always")  # a call per pair otherwise: 2x slower
 def _slot(cols, vals, base, span, bw, dim, t, last, P):
     """Slot of partner point ``P`` in the ``dim`` scalar rows of one point.
 
@@ -59,7 +59,7 @@ def _slot(cols, vals, base, span, bw, dim, t, last, P):
     return t, t + 1, P
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _close_rows(cols, vals, out_ptr, base, span, bw, dim, t, local):
     """Pack the ``dim`` rows of a point (row ``a`` moved from ``base + a span`` to
     ``base + a t bw``) and set their row pointers; returns the next free position."""
@@ -75,7 +75,7 @@ def _close_rows(cols, vals, out_ptr, base, span, bw, dim, t, local):
     return base + dim * length
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _viscous_pair(m, rho, nu, fluid, i, j, r2, k, dim, dt, eta2, morris):
     """Coefficient ``c`` (<= 0) of the pair (i, j) at distance squared ``r2`` in the
     viscous term of row ``i``, times dt: eq. (34) is ``c r r^T (v_i - v_j)``, Morris et
@@ -91,7 +91,7 @@ def _viscous_pair(m, rho, nu, fluid, i, j, r2, k, dim, dt, eta2, morris):
     return dt * m[j] * 2.0 * (dim + 2) * (nui + nuj) / ((rho[i] + rho[j]) * (r2 + eta2)) * f
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def viscous_pairs(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, dim, dt,
                   g, morris, first, out_ptr, out_cols, out_vals, coef, at, kind, reach,
                   diag):
@@ -108,7 +108,7 @@ def viscous_pairs(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h,
                          kind, reach * reach if reach > 0.0 else np.inf, diag)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def pair_offsets(order, fluid, solid, slip, indptr, indices, at):
     """Where :func:`viscous_pairs` puts the pair coefficients of the rows ``order`` (local
     particles): pair ``p`` of particle ``i`` (its neighbour list entry) at ``coef[at[i] +
@@ -132,7 +132,7 @@ def pair_offsets(order, fluid, solid, slip, indptr, indices, at):
     return k
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def viscous_csr(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, dim, dt,
                 g, morris, first, out_ptr, out_cols, out_vals):
     """CSR block and right-hand side of the implicit viscous predictor (30)/(34); see
@@ -143,7 +143,7 @@ def viscous_csr(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, d
                          np.inf, np.empty(0))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _viscous_rows(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h, dim, dt,
                   g, morris, first, out_ptr, out_cols, out_vals, scalar, coef, at, kind,
                   reach2, diag):
@@ -291,7 +291,7 @@ def _viscous_rows(x, v, m, rho, nu, fluid, solid, slip, row, indptr, indices, h,
     return k, rhs
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def viscous_apply(u, out, order, src, kind, coef, at, x, indptr, indices, dim):
     """The operator of :func:`viscous_csr` applied to ``u``, pair by pair: ``out = A u``.
 
@@ -347,7 +347,7 @@ def operator_callbacks(order, src, kind, coef, at, x, indptr, indices, dim, ghos
     return apply, ghost_points, correct
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def ghost_rows_exact(u, b, out, order, src, kind, coef, at, indptr, indices, dim):
     """The no-slip ghost rows (kind 2) of :func:`viscous_apply` solved exactly for the
     fluid's values in ``u`` (laid out as there): ``out[q] = b[q] - sum_f w_qf u_f``.
@@ -367,7 +367,7 @@ def ghost_rows_exact(u, b, out, order, src, kind, coef, at, indptr, indices, dim
         _store(out, q, dim, o0, o1, o2)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _ghost_sum(o0, o1, o2, sign, u, src, coef, c0, indptr, indices, i, dim):
     """``o + sign sum_f w_if u_f`` over the fluid partners of the ghost row of particle
     ``i`` (``coef[c0 + p]`` its weights, 0 for a pair left out; ``u`` laid out as in
@@ -385,7 +385,7 @@ def _ghost_sum(o0, o1, o2, sign, u, src, coef, c0, indptr, indices, i, dim):
     return o0, o1, o2
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _add_block(vals, at, span, dim, c00, c01, c02, c11, c12, c22):
     """Add the symmetric block ``c`` to the ``dim`` rows written side by side: row ``a``
     from ``at + a span``, columns in order."""
@@ -401,7 +401,7 @@ def _add_block(vals, at, span, dim, c00, c01, c02, c11, c12, c22):
         vals[at + 2 * span + 2] += c22
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def ghost_velocity(x, v, fluid, slip, indptr, indices, h, dim, out):
     """No-slip ghost velocity of the owned wall rows from the fluid's present velocity,
     ``out[w] = 2 v_w - sum_f W_wf v_f / sum_f W_wf`` (Adami et al. 2012, eqs. (22)-(23)):
@@ -431,7 +431,7 @@ def ghost_velocity(x, v, fluid, slip, indptr, indices, h, dim, out):
                 out[i, a] = v[i, a]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def viscous_explicit(x, v, v_ghost, m, rho, nu, fluid, slip, indptr, indices, h, dim, dt, g,
                      morris):
     r"""Explicit viscous predictor of the owned fluid rows: eq. (30) with the viscous term

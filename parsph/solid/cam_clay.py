@@ -71,14 +71,14 @@ P_MIN = 1.0
 """Default floor on p' (Pa) for the pressure-dependent moduli and tension cut-off."""
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def m_from_phi(phi):
     """Critical state slope ``M = 6 sin(phi)/(3 - sin(phi))`` (triaxial compression), phi in rad."""
     s = math.sin(phi)
     return 6.0 * s / (3.0 - s)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def mcc_moduli(p, v, kappa, nu, p_min=P_MIN):
     r"""Pressure-dependent tangent moduli of the swelling line (Algorithm 2).
 
@@ -104,7 +104,7 @@ def mcc_moduli(p, v, kappa, nu, p_min=P_MIN):
     return K, 1.5 * K * (1.0 - 2.0 * nu) / (1.0 + nu)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def mcc_yield(tau, p_c, M):
     """Yield function ``q^2/M^2 + p'(p' - p_c)`` (Pa^2) of a tension-positive stress tau."""
     p = -(tau[0, 0] + tau[1, 1] + tau[2, 2]) / 3.0
@@ -118,7 +118,7 @@ def mcc_yield(tau, p_c, M):
     return 1.5 * q2 / (M * M) + p * (p - p_c)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def mcc_trial(tau_n, dF, v, kappa, nu, p_min=P_MIN):
     r"""Objective elastic trial stress for the pressure-dependent elasticity.
 
@@ -157,7 +157,7 @@ def mcc_trial(tau_n, dF, v, kappa, nu, p_min=P_MIN):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def mcc_trial_into(tau_n, dF, v, kappa, nu, out, p_min=P_MIN):
     """:func:`mcc_trial` writing into ``out`` (3, 3); ``out`` may be ``tau_n`` (not ``dF``)."""
     # dV = sqrt(dF dF^T), d_eps = ln dV, dR = dV^-1 dF
@@ -196,7 +196,7 @@ def mcc_trial_into(tau_n, dF, v, kappa, nu, out, p_min=P_MIN):
             out)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _mcc_state(x, y, p_tr, q_tr, p_c, a, b, cmu, M2, p_min):
     """p', p_c, q, D = 1 + 6 mu x / M^2 and derivatives at (dgamma, d_eps_v_p) = (x, y)."""
     p = p_tr * math.exp(-a * y)
@@ -213,7 +213,7 @@ def _mcc_state(x, y, p_tr, q_tr, p_c, a, b, cmu, M2, p_min):
     return p, pc, q, D, dp_dy, b * pc, 6.0 * mu / M2, 6.0 * x * dmu_dy / M2
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _mcc_residual(x, y, p_tr, q_tr, p_c, a, b, cmu, M2, p_min, inv_scale):
     p, pc, q, D, _, _, _, _ = _mcc_state(x, y, p_tr, q_tr, p_c, a, b, cmu, M2, p_min)
     r1 = (q * q / M2 + p * (p - pc)) * inv_scale
@@ -221,7 +221,7 @@ def _mcc_residual(x, y, p_tr, q_tr, p_c, a, b, cmu, M2, p_min, inv_scale):
     return r1, r2
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _mcc_g(y, p_tr, q_tr, p_c, a, b, cmu, M, p_min):
     """Scalar residual R_2(y) with dgamma eliminated through f = 0; returns (R_2, dgamma)."""
     p = p_tr * math.exp(-a * y)
@@ -234,7 +234,7 @@ def _mcc_g(y, p_tr, q_tr, p_c, a, b, cmu, M, p_min):
     return y - x * (2.0 * p - pc), x
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _mcc_bisect(p_tr, q_tr, p_c, a, b, cmu, M, p_min):
     """Bisection on d_eps_v_p for the return (fall-back of the Newton loop).
 
@@ -268,7 +268,7 @@ def _mcc_bisect(p_tr, q_tr, p_c, a, b, cmu, M, p_min):
     return x_mid, 0.5 * (y_lo + y_hi), it, False
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def mcc_return_inplace(tau, p_c, v, kappa, lam, nu, M, p_min=P_MIN, tol=1e-10, max_iter=50):
     """Modified Cam-Clay return map on ``tau`` in place (trial in, returned out).
 
@@ -355,7 +355,7 @@ def mcc_return_inplace(tau, p_c, v, kappa, lam, nu, M, p_min=P_MIN, tol=1e-10, m
     return pc, y, x, it, converged
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def mcc_return(tau_trial, p_c, v, kappa, lam, nu, M, p_min=P_MIN, tol=1e-10, max_iter=50):
     r"""Modified Cam-Clay elastic-predictor / plastic-corrector, Algorithm 2 (corrected).
 

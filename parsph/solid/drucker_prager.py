@@ -70,7 +70,7 @@ ELASTIC, SMOOTH_CONE, APEX = 0, 1, 2
 """Values of the ``plastic`` flag returned by :func:`dp_return`."""
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def dp_params(phi, psi):
     """Cone coefficients ``(xi, eta, eta_bar)`` from the friction and dilatancy angles.
 
@@ -95,13 +95,13 @@ def dp_params(phi, psi):
     return xi, eta, eta_bar
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def dp_cohesion(eps_p, c0, H, c_r):
     """Cohesion ``max(c0 + H eps_p, c_r)`` (Pa) after an accumulated plastic strain eps_p."""
     return max(c0 + H * eps_p, c_r)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def dp_yield(tau, c, phi):
     r"""Yield function :math:`\Phi = \sqrt{J_2} + \eta p - \xi c` (Pa), eq. (A.1).
 
@@ -124,7 +124,7 @@ def dp_yield(tau, c, phi):
     return math.sqrt(j2) + eta * p - xi * c
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def dp_return_coeffs_inplace(tau, eps_p, K, mu, c0, H, c_r, xi, eta, eta_bar):
     """Drucker-Prager return map on ``tau`` in place, with precomputed cone coefficients.
 
@@ -204,7 +204,7 @@ def dp_return_coeffs_inplace(tau, eps_p, K, mu, c0, H, c_r, xi, eta, eta_bar):
     return eps_1 + alpha * dev, APEX
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def dp_return(tau_trial, eps_p, K, mu, c0, H, c_r, phi, psi):
     r"""Drucker-Prager elastic-predictor / plastic-corrector, Algorithm 1 (corrected).
 

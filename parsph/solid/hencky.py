@@ -34,13 +34,13 @@ from numba import njit
 from parsph.core.tensor import _congruence6, _eig6, _recon6, _store6, _sym6, det3
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def lame_from_young(E, nu):
     """Bulk and shear moduli ``(K, mu)`` from Young's modulus E (Pa) and Poisson's ratio nu."""
     return E / (3.0 * (1.0 - 2.0 * nu)), E / (2.0 * (1.0 + nu))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def hencky_tau_into(eps, K, mu, out):
     """:func:`hencky_tau` writing into ``out`` (3, 3)."""
     tr = eps[0, 0] + eps[1, 1] + eps[2, 2]
@@ -51,7 +51,7 @@ def hencky_tau_into(eps, K, mu, out):
         out[i, i] += lam
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def hencky_tau(eps, K, mu):
     r"""Kirchhoff stress of the Hencky model, eq. (16).
 
@@ -73,7 +73,7 @@ def hencky_tau(eps, K, mu):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def trial_state_into(dF, eps_e_prev, out):
     """:func:`trial_state` writing into ``out`` (3, 3); allocation-free."""
     e = _eig6(*_sym6(eps_e_prev))
@@ -83,7 +83,7 @@ def trial_state_into(dF, eps_e_prev, out):
     _store6(_recon6(0.5 * math.log(e[0]), 0.5 * math.log(e[1]), 0.5 * math.log(e[2]), e), out)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def trial_state(dF, eps_e_prev):
     r"""Elastic trial logarithmic strain, eqs. (22)-(24) (corrected).
 
@@ -110,7 +110,7 @@ def trial_state(dF, eps_e_prev):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def eps_from_tau_into(tau, E, nu, out):
     """:func:`eps_from_tau` writing into ``out`` (3, 3)."""
     tr = tau[0, 0] + tau[1, 1] + tau[2, 2]
@@ -121,7 +121,7 @@ def eps_from_tau_into(tau, E, nu, out):
         out[i, i] -= nu * tr / E
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def eps_from_tau(tau, E, nu):
     r"""Logarithmic elastic strain from the Kirchhoff stress, eq. (26).
 
@@ -145,7 +145,7 @@ def eps_from_tau(tau, E, nu):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def eps_from_tau_kmu(tau, K, mu):
     r"""Eq. (26) written with the bulk and shear moduli: ``tr(tau)/(9K) I + dev(tau)/(2 mu)``."""
     out = np.empty((3, 3))
@@ -157,7 +157,7 @@ def eps_from_tau_kmu(tau, K, mu):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def nominal_stress_into(F, tau, out):
     """:func:`nominal_stress` writing into ``out`` (3, 3); returns J = det F."""
     J = det3(F)
@@ -182,7 +182,7 @@ def nominal_stress_into(F, tau, out):
     return J
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def nominal_stress(F, tau):
     r"""Nominal stress, eq. (27): :math:`\mathbf P = \mathbf F^{-1}\tau`.
 
@@ -204,7 +204,7 @@ def nominal_stress(F, tau):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def cauchy_stress(tau, F):
     r"""Cauchy stress :math:`\sigma = \tau / J`, :math:`J = \det\mathbf F` (after eq. (16))."""
     return tau / det3(F)

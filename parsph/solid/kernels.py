@@ -32,14 +32,14 @@ from parsph.core.kernel import w as _w
 from parsph.core.tensor import eigh3
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _factor(r, h, dim):
     """:func:`parsph.core.kernel.fac_grad` rounded to float32, the value
     :func:`pair_factors` stores (the same in every sum of this module)."""
     return np.float64(np.float32(fac_grad(r, h, dim)))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def correction_matrices(X, vol, sel, n, indptr, indices, h, dim, floor, L):
     r"""Correction matrices :math:`\mathbf L_i` of the kernel gradient (rows ``i < n``).
 
@@ -101,7 +101,7 @@ def correction_matrices(X, vol, sel, n, indptr, indices, h, dim, floor, L):
     return clamped
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def pair_factors(X, sel, n, indptr, indices, h, dim):
     r"""Per pair, :math:`F(|\mathbf R_{ij}|) = W'(R)/R` (:func:`parsph.core.kernel.fac_grad`), 0 for
     pairs with a non-solid end: the reference configuration is fixed, so the kernel is
@@ -126,7 +126,7 @@ def pair_factors(X, sel, n, indptr, indices, h, dim):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def gradient(f, X, vol, L, sel, n, indptr, indices, h, dim, out):
     r"""Corrected SPH gradient of a scalar field, :math:`\sum_j V_j (f_j - f_i)\,
     \mathbf L_i\nabla W(\mathbf R_{ij})` (the form of eq. (14)), into ``out`` (n, dim)."""
@@ -151,7 +151,7 @@ def gradient(f, X, vol, L, sel, n, indptr, indices, h, dim, out):
             out[i, a] = s
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def stress_divergence(Q, X, m, fp, n, indptr, indices, out):
     r"""Momentum term of eq. (13) with :math:`\rho = \rho_0`, into ``out`` (n, 3).
 
@@ -188,7 +188,7 @@ def stress_divergence(Q, X, m, fp, n, indptr, indices, out):
         out[i, 2] = o2
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def laplacian(v, x, m, rho, fp, n, indptr, indices, h, dim, out, coef):
     r"""Velocity Laplacian of eq. (11), into ``out`` (n, 3); each pair's coefficient
     :math:`m_j \frac{8}{\rho_i+\rho_j} F(r_{ij}) / r_{ij}^2` into ``coef`` (one per
@@ -247,7 +247,7 @@ def laplacian(v, x, m, rho, fp, n, indptr, indices, h, dim, out, coef):
         out[i, 2] = o2
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def laplacian_stored(v, x, coef, n, indptr, indices, out):
     r""":func:`laplacian` of ``v`` over the pair coefficients ``coef`` it stored for the
     same positions: the :math:`\nabla^4\mathbf v` pass of eq. (12), without a square
@@ -277,7 +277,7 @@ def laplacian_stored(v, x, coef, n, indptr, indices, out):
         out[i, 2] = o2
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def velocity_gradient(v, X, vol, L, fp, n, indptr, indices, out):
     r"""Rate of the deformation gradient, eqs. (6) and (14), into ``out`` (n, 3, 3).
 
@@ -314,7 +314,7 @@ def velocity_gradient(v, X, vol, L, fp, n, indptr, indices, out):
                 out[i, a, b] = G[a, 0] * L[i, b, 0] + G[a, 1] * L[i, b, 1] + G[a, 2] * L[i, b, 2]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def hourglass(x, X, F, m, vol, modulus, fp, n, indptr, indices, h, dim, alpha, out):
     r"""Hourglass (zero-energy mode) control of Ganzenmueller (2015), added to ``out``.
 
@@ -366,7 +366,7 @@ def hourglass(x, X, F, m, vol, modulus, fp, n, indptr, indices, h, dim, alpha, o
         out[i, 2] += o2 / m[i]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def kick(v, acc, lap, lap4, g, extra, sel, n, dt, cpd, eps2, c4, dim):
     r"""Eq. (7) for the solid rows ``i < n``: :math:`\mathbf v_i \mathrel{+}= \Delta t\,
     (\mathbf a_i + c_p d\,(\varepsilon^{(2)}\nabla^2\mathbf v_i - d^2\varepsilon^{(4)}
@@ -393,7 +393,7 @@ def kick(v, acc, lap, lap4, g, extra, sel, n, dt, cpd, eps2, c4, dim):
             v[i, a] += dt * s
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def drift(x, v, sel, n, dt, dim):
     r""":math:`\mathbf x_i \mathrel{+}= \Delta t\,\mathbf v_i` for the solid rows ``i < n``."""
     for i in range(n):

@@ -67,7 +67,7 @@ def material_table(materials) -> np.ndarray:
     return tab
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def wave_speed(tab, material, pressure, porosity, sel, n, modulus):
     r"""Largest p-wave speed :math:`c_p = \sqrt{(K + 4\mu/3)/\rho_0}` of eq. (10) (m/s).
 
@@ -94,7 +94,7 @@ def wave_speed(tab, material, pressure, porosity, sel, n, modulus):
     return cmax
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def elastic_energy(tab, material, sel, n, vol, eps_e):
     r"""Stored Hencky energy :math:`\sum V_0 (\mu\,\mathrm{dev}\,\varepsilon :
     \mathrm{dev}\,\varepsilon + \tfrac{K}{2} (\mathrm{tr}\,\varepsilon)^2)` (J, or J/m in
@@ -117,7 +117,7 @@ def elastic_energy(tab, material, sel, n, vol, eps_e):
     return total
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def update_particles(tab, material, sel, n, dt, Fdot, F, tau, eps_e, eps_p, p_c,
                      porosity, pressure, failed, dim):
     """Advance F, porosity and stress of the owned solid particles by one step.
@@ -231,7 +231,7 @@ def update_particles(tab, material, sel, n, dt, Fdot, F, tau, eps_e, eps_p, p_c,
     return bad, plastic
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def stress_terms(tau, F, L, rho0_of, material, sel, n, dim, ambient, Q):
     r"""Per-particle :math:`\mathbf Q_i = \mathbf L_i^T(\mathbf P_i - \mathbf P^{amb}_i)
     /\rho_{0i}^2` read by :func:`parsph.solid.kernels.stress_divergence`, with the

@@ -65,7 +65,7 @@ _BOX_SUMS = ("count", "mass", "volume", "fluid_volume", "solid_volume", "fluidis
 
 # --------------------------------------------------------------------------- kernels
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def projected_w(rho, h, dim, gx, gw):
     r"""Vertical integral :math:`\hat W(\rho) = \int_{-\infty}^{\infty}
     W(\sqrt{\rho^2 + z^2}, h)\,dz` of the ``dim``-dimensional cubic spline (1/m^(dim-1)).
@@ -90,7 +90,7 @@ def projected_w(rho, h, dim, gx, gw):
     return 2.0 * total
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _interpolate(x, nq, station, indptr, indices, vals, h, dim, acc):
     """acc[station[q]] += W(x_q - x_j) vals[j - nq] over the particle neighbours j of
     query row q (rows >= nq of ``x`` are particles, rows < nq station images)."""
@@ -110,7 +110,7 @@ def _interpolate(x, nq, station, indptr, indices, vals, h, dim, acc):
                 acc[s, c] += wk * vals[j - nq, c]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _column(xh, zq, zp, nq, station, indptr, indices, vals, h, dim, gx, gw, acc):
     """acc[station[q]] += W_hat(rho) vals[j - nq] over the particles j within 2h
     horizontally (``xh``: the horizontal coordinates) whose centre is above ``zq[q]``."""
@@ -138,7 +138,7 @@ def projected_w_array(rho, h, dim):
                      for r in rho.reshape(-1)]).reshape(rho.shape)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _projected_one(rho, h, dim, gx, gw):
     return projected_w(rho, h, dim, gx, gw)
 
