@@ -93,15 +93,14 @@ def ppe_csr(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt, 
     n = indptr.shape[0] - 1
     rhs = np.zeros(n)
     kc = constants(h, dim)
-    ok, e0, e1, e2 = False, 0.0, 0.0, 0.0
-    L = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    ok, le0, le1, le2 = False, 0.0, 0.0, 0.0
     out_ptr[0] = 0
     k = 0
     order = rows_in_order(row, n, first)
     longest = 0
     for q in range(order.shape[0]):
         longest = max(longest, indptr[order[q] + 1] - indptr[order[q]])
-    scratch = np.empty((longest if corrected else 0, 4))  # (x_i - x_j, F_ij) of one row
+    scratch = np.empty((longest if corrected else 0, 5))  # (x_i - x_j, F_ij, V_j F_ij)
     for q in range(order.shape[0]):
         i = order[q]
         ri = row[i]
@@ -112,7 +111,7 @@ def ppe_csr(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt, 
         diag = 1.0
         interior = fluid[i] and not free[i]
         boundary = not fluid[i] and not free[i]  # in contact with the fluid
-        s = 0.0
+        s = sr = 0.0
         div = 0.0
         plain = 0.0
         use_corr = False
@@ -127,9 +126,10 @@ def ppe_csr(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt, 
                 # had cost 58 ms of a 3D step at 1.1e5 particles, the printed
                 # Laplacian's one pass 29 ms)
                 start = indptr[i]
-                ok, e0, e1, e2, L, div = _truncation_and_divergence(
+                ok, le0, le1, le2, div = _truncation_and_divergence(
                     x, vs, m, rho, indptr, indices, i, kc, dim, v0, v1, v2, scratch)
                 use_corr = ok
+                sr = s / rho[i]
                 for p in range(start, indptr[i + 1]):
                     j = indices[p]
                     rj = row[j]
@@ -137,13 +137,11 @@ def ppe_csr(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt, 
                         dslot, t, last = _scalar_slot(out_cols, out_vals, base, t, last, ri)
                     slot, t, last = _scalar_slot(out_cols, out_vals, base, t, last, rj)
                     o = p - start
-                    f = scratch[o, 3]
                     # >= 0: the pair's response; 1 where one end is a boundary (see above)
-                    c = -s * (2.0 if fluid[j] else 1.0) / rho[i] * m[j] * f
+                    c = -((2.0 if fluid[j] else 1.0) * sr) * m[j] * scratch[o, 3]
                     plain += c
                     if use_corr:
-                        c = _corrected(c, m, rho, j, f, s, e0, e1, e2, L, scratch[o, 0],
-                                       scratch[o, 1], scratch[o, 2])
+                        c = _corrected(c, s, le0, le1, le2, scratch, o)
                     diag += c
                     out_vals[base + slot] -= c
             else:
@@ -173,12 +171,9 @@ def ppe_csr(x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt, 
                 for p in range(indptr[i], indptr[i + 1]):
                     j = indices[p]
                     o = p - indptr[i]
-                    f = scratch[o, 3]
-                    c = -s * (2.0 if fluid[j] else 1.0) / rho[i] * m[j] * f
+                    c = -((2.0 if fluid[j] else 1.0) * sr) * m[j] * scratch[o, 3]
                     u = _column_slot(out_cols, base, t, row[j])
-                    out_vals[base + u] += _corrected(c, m, rho, j, f, s, e0, e1, e2, L,
-                                                     scratch[o, 0], scratch[o, 1],
-                                                     scratch[o, 2]) - c
+                    out_vals[base + u] += _corrected(c, s, le0, le1, le2, scratch, o) - c
             if interior:
                 div /= rho[i]
                 # density-error term of eq. (32) for compression only: under-density near
@@ -208,15 +203,16 @@ def _scalar_slot(cols, vals, base, t, last, col):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _corrected(c, m, rho, j, f, s, e0, e1, e2, L, d0, d1, d2):
+def _corrected(c, s, le0, le1, le2, scratch, o):
     """The pair coefficient ``c`` of a fluid row with the first-order correction of the
     ``corrected`` Laplacian, + 2 s e_i . L_i V_j grad W_ij, kept >= 0 (an M-matrix row).
-    ``(d0, d1, d2) = x_i - x_j``; ``L`` the six entries of the symmetric L_i
-    (:func:`_truncation_and_divergence`)."""
-    l00, l01, l02, l11, l12, l22 = L
-    eb = e0 * (l00 * d0 + l01 * d1 + l02 * d2) + e1 * (l01 * d0 + l11 * d1 + l12 * d2) \
-        + e2 * (l02 * d0 + l12 * d1 + l22 * d2)
-    return max(c - 2.0 * s * m[j] / rho[j] * f * eb, 0.0)
+    ``(le0, le1, le2) = L_i e_i`` (:func:`_truncation_and_divergence`; L_i symmetric, so
+    e_i . L_i r = (L_i e_i) . r); row ``o`` of ``scratch`` the pair's ``(x_i - x_j, F_ij,
+    V_j F_ij)``. The row's products taken once, not per pair: the second pass over a
+    row's pairs had cost 26 of the 42 ms of the PPE's block in the 3D tank of
+    ``jobs/bench_memory.py``."""
+    eb = le0 * scratch[o, 0] + le1 * scratch[o, 1] + le2 * scratch[o, 2]
+    return max(c - 2.0 * s * scratch[o, 4] * eb, 0.0)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -235,13 +231,12 @@ def _column_slot(cols, base, t, col):
 @njit(cache=True, error_model="numpy", inline="always")
 def _truncation_and_divergence(x, vs, m, rho, indptr, indices, i, k, dim, v0, v1, v2,
                                scratch):
-    """``(ok, e0, e1, e2, L)`` of row ``i`` (``e`` = sum_j (m_j / rho_i) grad W_ij, ``L``
-    the six entries ``(l00, l01, l02, l11, l12, l22)`` of the inverse of the symmetric
-    moment matrix sum_j V_j grad W_ij (x) (x_j - x_i); ``ok`` False where it is near
-    singular: no correction then) and, in the same pass, the sum
-    ``sum_j m_j (v*_j - v*_i) . (x_i - x_j) F_ij`` of its divergence; each pair's
-    ``(x_i - x_j, F_ij)`` goes to row ``p - indptr[i]`` of ``scratch``. Returns
-    ``(ok, e0, e1, e2, L, div)``."""
+    """``(ok, L e)`` of row ``i`` (``e`` = sum_j (m_j / rho_i) grad W_ij, ``L`` the
+    inverse of the symmetric moment matrix sum_j V_j grad W_ij (x) (x_j - x_i), V_j =
+    m_j / rho_j; ``ok`` False where it is near singular: no correction then) and, in the
+    same pass, the sum ``sum_j m_j (v*_j - v*_i) . (x_i - x_j) F_ij`` of its divergence;
+    each pair's ``(x_i - x_j, F_ij, V_j F_ij)`` goes to row ``p - indptr[i]`` of
+    ``scratch``. Returns ``(ok, le0, le1, le2, div)``."""
     e0 = e1 = e2 = 0.0
     m00 = m01 = m02 = m11 = m12 = m22 = 0.0
     div = 0.0
@@ -255,6 +250,8 @@ def _truncation_and_divergence(x, vs, m, rho, indptr, indices, i, k, dim, v0, v1
         scratch[q, 1] = d1
         scratch[q, 2] = d2
         scratch[q, 3] = f
+        vf = m[j] / rho[j] * f
+        scratch[q, 4] = vf
         u0, u1, u2 = _vec(vs, j, dim)
         dvr = (u0 - v0) * d0 + (u1 - v1) * d1 + (u2 - v2) * d2
         div += m[j] * dvr * f
@@ -262,15 +259,16 @@ def _truncation_and_divergence(x, vs, m, rho, indptr, indices, i, k, dim, v0, v1
         e0 += a * d0
         e1 += a * d1
         e2 += a * d2
-        b = -m[j] / rho[j] * f
+        b = -vf
         m00 += b * d0 * d0
         m01 += b * d0 * d1
         m02 += b * d0 * d2
         m11 += b * d1 * d1
         m12 += b * d1 * d2
         m22 += b * d2 * d2
-    ok, L = _invert_sym(m00, m01, m02, m11, m12, m22, dim)
-    return ok, e0, e1, e2, L, div
+    ok, (l00, l01, l02, l11, l12, l22) = _invert_sym(m00, m01, m02, m11, m12, m22, dim)
+    return (ok, l00 * e0 + l01 * e1 + l02 * e2, l01 * e0 + l11 * e1 + l12 * e2,
+            l02 * e0 + l12 * e1 + l22 * e2, div)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
