@@ -684,8 +684,11 @@ def _view_value(comm, system, tmp, words):
 
 
 def test_hypre_options_are_defaults_the_options_database_overrides(comm, mpi_tmp_path):
-    """``LinearSystem(hypre_options=...)`` (the PPE's aggressive coarsening) sets BoomerAMG
-    options under the prefix; -{prefix}pc_hypre_boomeramg_agg_nl given by the user wins."""
+    """``LinearSystem(hypre_options=...)`` (the PPE's: aggressive HMIS coarsening, ext+i
+    interpolation of at most 4 points) sets BoomerAMG options under the prefix;
+    -{prefix}pc_hypre_boomeramg_agg_nl given by the user wins."""
+    from parsph.fluid.stage import PPE_HYPRE_OPTIONS
+
     if not petsc_env.has_hypre():
         pytest.skip("this PETSc has no hypre")
     PETSc = petsc_env.petsc()
@@ -693,7 +696,7 @@ def test_hypre_options_are_defaults_the_options_database_overrides(comm, mpi_tmp
     for prefix, asked, expect in (("aggd_", None, "1"), ("aggu_", "0", "0"), ("aggn_", "", "0")):
         if asked:
             PETSc.Options().setValue(prefix + "pc_hypre_boomeramg_agg_nl", asked)
-        extra = {"pc_hypre_boomeramg_agg_nl": "1"} if asked != "" else None
+        extra = PPE_HYPRE_OPTIONS if asked != "" else None
         try:
             with LinearSystem(comm, prefix, block_rows(comm, n * n), hypre_options=extra) as system:
                 first, stop = system.owned_range
@@ -701,6 +704,11 @@ def test_hypre_options_are_defaults_the_options_database_overrides(comm, mpi_tmp
                 system.solve(rhs_of(n * n)[first:stop])
                 assert _view_value(comm, system, mpi_tmp_path, "aggressive coarsening") == expect
                 assert _smoother(comm, system, mpi_tmp_path) == "l1-Gauss-Seidel"
+                ppe = (("Coarsen type", "HMIS"), ("Interpolation type", "ext+i"),
+                       ("max elements per row", "4"))
+                for words, value in ppe:
+                    assert (_view_value(comm, system, mpi_tmp_path, words) == value) == (
+                        extra is not None), words
         finally:
             if asked:
                 PETSc.Options().delValue(prefix + "pc_hypre_boomeramg_agg_nl")

@@ -47,9 +47,11 @@ from solvers.csr import scale_rows, sort_neighbours_by_row, unit_diagonal
 #: in 3D that had sat beside the next lists, the solid's step, a checkpoint, that solve.
 STEP_FIELDS = (("fluid_row", False), ("v_star", True), ("inv_mass", True), ("a_self", True))
 
-#: BoomerAMG defaults of the PPE beyond every system's smoother (``-ppe_pc_hypre_boomeramg_
-#: agg_nl 0`` undoes it). The viscous system keeps plain coarsening (the demo gained nothing).
-PPE_HYPRE_OPTIONS = {"pc_hypre_boomeramg_agg_nl": "1"}
+#: BoomerAMG defaults of the PPE beyond every system's smoother: aggressive HMIS coarsening
+#: with ext+i interpolation of at most 4 points (docs/solvers.md; the options database wins).
+#: The viscous system keeps plain coarsening (the demo gained nothing).
+PPE_HYPRE_OPTIONS = {"pc_hypre_boomeramg_agg_nl": "1", "pc_hypre_boomeramg_coarsen_type": "HMIS",
+                     "pc_hypre_boomeramg_interp_type": "ext+i", "pc_hypre_boomeramg_P_max": "4"}
 
 STATS = ("viscous_number", "visc_iterations", "visc_residual", "ppe_iterations", "ppe_residual",
          "ppe_setup", "n_free_surface", "fluid_contacts", "max_divergence", "density_work",
@@ -165,7 +167,7 @@ class IISPH:
 
             self.destroy()
             tol = dict(max_it=self.num.max_it)
-            # PPE: agg_nl 1, 30 % cheaper V-cycles and set-ups (docs/solvers.md)
+            # PPE: cheaper V-cycles and set-ups with PPE_HYPRE_OPTIONS (docs/solvers.md)
             self._ppe = LinearSystem(ctx.comm, "ppe_", n, ksp_type="gmres", rtol=self.num.ppe_rtol,
                                      reuse_preconditioner=self.num.preconditioner_reuse,
                                      hypre_options=PPE_HYPRE_OPTIONS, **tol)
