@@ -494,10 +494,11 @@ class IISPH:
         if mode == "corrected":
             grad = assembly.pressure_gradient_corrected(x, p["p"], m, rho, fluid, indptr,
                                                         indices, h, dim)
-        else:
-            grad = assembly.pressure_gradient(x, p["p"], m, rho, fluid, indptr, indices, h, dim)
-            if mode == "hybrid":  # surface rows (p = 0, half a support): corrected
-                surface = (free[:n] == 1).astype(np.uint8) & fluid[:n]
+        else:  # (hybrid: the surface rows, p = 0 and half a support, corrected below)
+            surface = (free[:n] == 1).astype(np.uint8) & fluid[:n]
+            grad = assembly.pressure_gradient(x, p["p"], m, rho, fluid[:n] & (
+                1 - surface if mode == "hybrid" else 1), indptr, indices, h, dim)
+            if mode == "hybrid":
                 # the fluid's pressure over its fluid neighbours only, and each solid
                 # neighbour's (type II in contact: a no-penetration multiplier) by the
                 # symmetric pair of eq. (37), the exact reaction of the force the solid
