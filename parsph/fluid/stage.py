@@ -292,7 +292,7 @@ class IISPH:
         full[order] = vstar
         self.solid_viscous_dv = np.where((solid[:n] > 0)[:, None] & moved[:, None],
                                          full - p["v"][:n], 0.0)
-        out[:n][moved] = full[moved]
+        np.copyto(out[:n], full, where=moved[:, None])
         p["v_ghost"][:n][wall] = full[wall]
         return info, t_asm
 
@@ -418,7 +418,7 @@ class IISPH:
         moved = own_fluid | own_solid  # the rows whose velocity the viscous solve sets
         self.solid_viscous_dv = np.zeros((0, dim))  # (set by a viscous solve, else none)
         if first:  # the PPE's predictor: the body force alone
-            vs[:n][own_fluid] += dt * g
+            np.add(vs[:n], dt * g, out=vs[:n], where=own_fluid[:, None])
             self._halo(ctx, ["v_star", "a_self"] if coupled else ["v_star"])
         elif explicit:  # zeta << 1: forward Euler on the operator of eq. (34), no matrix
             self._halo(ctx, ["nu"])
@@ -544,7 +544,7 @@ class IISPH:
                 contacts = wall_contact(x, vnew, surface, surface, 1 - fluid, moving, indptr,
                                         indices, h, d, dim, mu, push,
                                         np.full(len(fluid), -1.0))
-        p["v"][:n][own_fluid] = vnew[own_fluid]
+        np.copyto(p["v"][:n], vnew, where=own_fluid[:, None])
         grad = vnew = corr = moving = vs = None  # not held through the viscous solve
         t_asm += time.perf_counter() - t0
         if first:  # the viscous solve on the projected velocity, the new p in eq. (40)
@@ -559,7 +559,7 @@ class IISPH:
                                                  wall, p["v"])
             t_asm += dt_asm
         t0 = time.perf_counter()
-        p["x"][:n][own_fluid] += dt * p["v"][:n][own_fluid]
+        np.add(p["x"][:n], dt * p["v"][:n], out=p["x"][:n], where=own_fluid[:, None])
         t_asm += time.perf_counter() - t0
 
         (n_free, n_contacts, density_work, n_coupled), (max_div,), _ = global_reduce(
