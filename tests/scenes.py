@@ -369,3 +369,31 @@ def gather_particles(comm, fields):
     order = np.argsort(ids)
     return ids[order], np.concatenate([f["x"] for f in allf])[order], \
         np.concatenate([f["phase"] for f in allf])[order]
+
+
+def pvbatch(*args, timeout=300):
+    """Run Debian's ``pvbatch`` with ``args`` under ``xvfb-run`` (if installed), outside
+    the MPI job of the test (a clean MPI environment); returns the CompletedProcess.
+
+    An X server that does not come up, or that pvbatch cannot connect to ("bad X server
+    connection": a display an old server still held), is retried twice more, each time
+    on another display number picked at random and after a pause; nothing else is
+    retried. Three immediate retries on the same display had all failed once in CI."""
+    import os
+    import random
+    import re
+    import shutil
+    import subprocess
+    import time
+
+    env = {k: v for k, v in os.environ.items()
+           if not k.startswith(("OMPI_", "PMIX_", "PMI_", "OPAL_", "HYDRA_"))}
+    xvfb = shutil.which("xvfb-run")
+    for attempt in range(3):
+        display = ["-n", str(random.randint(100, 9999))] if attempt else []
+        cmd = ([xvfb, "-a", *display] if xvfb else []) + [shutil.which("pvbatch"), *args]
+        r = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
+        if r.returncode == 0 or not re.search(r"X server|display", r.stderr, re.I):
+            return r
+        time.sleep(2.0 * (attempt + 1))
+    return r

@@ -11,17 +11,16 @@ phase, arrows of velocity) renders the run. Skipped only where ``pvbatch`` is no
 installed (scripts/setup.sh installs it).
 """
 import os
-import re
 import shutil
-import subprocess
 
 import numpy as np
 import pytest
 
+from tests.scenes import pvbatch
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 GLYPHS = os.path.join(ROOT, "scripts", "paraview_glyphs.py")
 PVBATCH = shutil.which("pvbatch")
-XVFB_RUN = shutil.which("xvfb-run")
 
 needs_pvbatch = pytest.mark.skipif(
     PVBATCH is None, reason="pvbatch not found: install Debian's paraview, python3-paraview "
@@ -67,18 +66,6 @@ if len(sys.argv) > 3:  # GLYPH_SCRIPT RUN_DIR PNG
 '''
 
 
-def _pvbatch(script, *args, timeout=300):
-    """Run a pvbatch script outside the MPI job of the test (a clean MPI environment)."""
-    env = {k: v for k, v in os.environ.items()
-           if not k.startswith(("OMPI_", "PMIX_", "PMI_", "OPAL_", "HYDRA_"))}
-    cmd = ([XVFB_RUN, "-a"] if XVFB_RUN else []) + [PVBATCH, script, *args]
-    for _ in range(3):  # an X server that did not come up is retried, nothing else
-        r = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env)
-        if r.returncode == 0 or not re.search(r"X server|display", r.stderr, re.I):
-            return r
-    return r
-
-
 SCENES = {
     2: ("dam_break", ["domain.particle_size=0.02", "run.end_time=0.01", "output.every=0.005"]),
     3: ("triaxial_light", ["domain.particle_size=0.01", "run.end_time=0.0008",
@@ -110,7 +97,7 @@ def test_paraview_reads_steps_points_and_velocity(comm, mpi_tmp_path, dim):
     dump = os.path.join(mpi_tmp_path, "pv")
     os.makedirs(dump)
     png = os.path.join(mpi_tmp_path, "glyphs.png")
-    r = _pvbatch(script, os.path.abspath(os.path.join(out, "particles.xdmf")), dump,
+    r = pvbatch(script, os.path.abspath(os.path.join(out, "particles.xdmf")), dump,
                  GLYPHS, out, png)
     assert r.returncode == 0, r.stdout + r.stderr
     assert "Skipping" not in r.stdout + r.stderr, r.stdout + r.stderr
