@@ -11,11 +11,12 @@ BASE_BYTES = {2: 100 + 4 * 24 + 40, 3: 120 + 4 * 70 + 40}
 #: Extra bytes per particle of each stage (its fields and, for implicit stages, matrices).
 #: iisph: its fields, both systems' scalar matrices with their hypre copies and AMG
 #: hierarchies, the viscous pairs' coefficients. coupled: the same with the solid's view
-#: and TLSPH's pairs: a 3D coupled tank rose by 2.02 kB per particle in all at 1.1e5
-#: particles on one rank, 2.14 kB at 1.0e6 and 2.13 kB at 5.1e6 on two
-#: (jobs/bench_memory.py, docs/benchmarks.md); the estimate is 10 % above. 2D (~24
-#: neighbours against ~57) is taken at the same figures, an upper bound.
-STAGE_BYTES = {"kinematics": 0, "density": 8, "iisph": 3300, "tlsph": 1200, "coupled": 1900}
+#: and TLSPH's pairs: a 3D coupled tank rose by 1.81 kB per particle in all at 1.1e5
+#: particles on one rank, 1.92-1.97 kB on two and 1.95 kB at 1.0e6 on two
+#: (jobs/bench_memory.py, docs/benchmarks.md, 2026-12-05); the estimate (2,170 B with
+#: BASE_BYTES) is 10 % above. 2D (~24 neighbours against ~57) is taken at the same
+#: figures, an upper bound.
+STAGE_BYTES = {"kinematics": 0, "density": 8, "iisph": 3300, "tlsph": 1200, "coupled": 1730}
 #: More bytes per particle with ``fluid.viscous_operator = "assembled"`` (the dim x dim
 #: blocks held as CSR work arrays, PETSc's AIJ and hypre's copy with its hierarchy: the
 #: same 3D tank rose by 14.2 kB per particle).
