@@ -326,21 +326,21 @@ def build_csr(x, n_query, radius, active=None):
             raise ValueError(f"active must have one flag per row ({n},), got {active.shape}")
     order, rank_of, xs, grid = _binned(x, lo3, hi3, extent, radius)
     # running counts over the slots (cell order): the active slots (and below, the slots
-    # whose rows keep a list) in any range of cells
-    # and the cells within reach of any such slot (dense grid): a row elsewhere is not
-    # searched (the dry walls and the type-I solids of a coupled scene, about half its
-    # rows, had cost a pruned range search each in both passes: the lists of the 3D tank
-    # of jobs/bench_memory.py, 112,761 particles, took 87 ms, now 78)
+    # whose rows keep a list) in any range of cells; and the cells near such slots (dense
+    # grid: two cells each way for the count, within reach for the fill): a row elsewhere
+    # is not searched (the dry walls and the type-I solids of a coupled scene, about half
+    # its rows, had cost a pruned range search each in both passes: the lists of the 3D
+    # tank of jobs/bench_memory.py, 112,761 particles, took 87 ms, then 78)
     act_s = kept = np.zeros(0, dtype=np.int32)
-    wet_cells = kept_cells = np.zeros(0, dtype=np.uint8)
+    near_cells = kept_cells = np.zeros(0, dtype=np.uint8)
     if active is not None:
         act_s = _running_count(active[order])
         ncell, reach, sparse, start = grid[2:6]
-        wet_cells = reachable_cells(active[order], ncell, 2 * reach, sparse, start)
+        near_cells = reachable_cells(active[order], ncell, 2 * reach, sparse, start)
     keep = np.zeros(n_query, dtype=np.uint8)
     keep_s = np.zeros(n, dtype=np.uint8)
-    _count(xs, order, n_query, r2max, *grid, indptr, act_s, wet_cells, keep, keep_s)
-    act_s = wet_cells = None  # (not held beside the lists)
+    _count(xs, order, n_query, r2max, *grid, indptr, act_s, near_cells, keep, keep_s)
+    act_s = near_cells = None  # (not held beside the lists)
     indices = np.empty(int(indptr[-1]), dtype=np.int32)
     if indices.shape[0] > _GATHER_MIN_PAIRS and _disorder(order) > _GATHER_DISORDER:
         ok = _fill_gather(xs, order, n_query, r2max, *grid, indptr, indices, keep)
