@@ -98,6 +98,8 @@ def _count(xs, order, n_query, r2max, lo, inv_cell, ncell, reach, sparse, start,
         x1 = xs[s, 1]
         x2 = xs[s, 2]
         c = 0
+        # two loops, not one with the masked updates under a test: that one measured
+        # 21.4 against 20.5 ms with a mask and 40.3 against 34.2 ms without
         if masked:
             a_s = act_s[s + 1] - act_s[s]
             wv = 0

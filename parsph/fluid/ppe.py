@@ -208,9 +208,9 @@ def _corrected(c, s, le0, le1, le2, scratch, o):
     ``corrected`` Laplacian, + 2 s e_i . L_i V_j grad W_ij, kept >= 0 (an M-matrix row).
     ``(le0, le1, le2) = L_i e_i`` (:func:`_truncation_and_divergence`; L_i symmetric, so
     e_i . L_i r = (L_i e_i) . r); row ``o`` of ``scratch`` the pair's ``(x_i - x_j, F_ij,
-    V_j F_ij)``. The row's products taken once, not per pair: the second pass over a
-    row's pairs had cost 26 of the 42 ms of the PPE's block in the 3D tank of
-    ``jobs/bench_memory.py``."""
+    V_j F_ij)``. The row's products taken once, not per pair: the PPE's block of the 3D
+    tank of ``jobs/bench_memory.py`` 42.5 -> 40 ms (its second pass over a row's pairs
+    is 26 ms of the 42.5, mostly loads and slot writes, not this product)."""
     eb = le0 * scratch[o, 0] + le1 * scratch[o, 1] + le2 * scratch[o, 2]
     return max(c - 2.0 * s * scratch[o, 4] * eb, 0.0)
 
