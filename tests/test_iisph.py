@@ -314,8 +314,8 @@ def test_explicit_viscous_predictor_is_the_implicit_operator_at_v(morris):
     u[3] = ghost[3]
     Au = (A @ u.reshape(-1)).reshape(4, dim)
     assert Au[3] == pytest.approx(rhs[3], rel=1e-12)  # the wall row holds for the ghost
-    vstar = viscous.viscous_explicit(x, v, ghost, m, rho, nu, fluid, slip, indptr, indices, h,
-                                      dim, dt, g, morris)
+    vstar = viscous.viscous_explicit(x, v, ghost, m, rho, nu, fluid, np.zeros(4), slip, indptr,
+                                      indices, h, dim, dt, g, morris)
     for i in (0, 1, 2):
         assert vstar[i] == pytest.approx(rhs[i] + u[i] - Au[i], rel=1e-12, abs=1e-15)
         assert np.abs(vstar[i] - (v[i] + dt * g)).max() > 1e-4  # the viscous term acts

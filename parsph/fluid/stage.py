@@ -47,9 +47,8 @@ from solvers.csr import scale_rows, sort_neighbours_by_row, unit_diagonal
 #: in 3D that had sat beside the next lists, the solid's step, a checkpoint, that solve.
 STEP_FIELDS = (("fluid_row", False), ("v_star", True), ("inv_mass", True), ("a_self", True))
 
-#: BoomerAMG defaults of the PPE beyond every system's smoother: aggressive HMIS coarsening
-#: with ext+i interpolation of at most 4 points (docs/solvers.md; the options database wins).
-#: The viscous system keeps plain coarsening (the demo gained nothing).
+#: BoomerAMG defaults of the PPE beyond every system's smoother: aggressive HMIS coarsening,
+#: ext+i interpolation of at most 4 points (docs/solvers.md; the options database wins).
 PPE_HYPRE_OPTIONS = {"pc_hypre_boomeramg_agg_nl": "1", "pc_hypre_boomeramg_coarsen_type": "HMIS",
                      "pc_hypre_boomeramg_interp_type": "ext+i", "pc_hypre_boomeramg_P_max": "4"}
 
@@ -402,11 +401,14 @@ class IISPH:
         own_fluid = fluid[:n] == 1
         wall = act & ~own_fluid & (solid[:n] == 0)
         morris = self.num.viscous_term == "morris"
-        zeta = global_max(ctx.comm, float(p["nu"][:n][own_fluid].max()) * dt / (h * h)
-                          if own_fluid.any() else 0.0)
+        # the fluid's largest viscous number; a type-II row's pair coefficients are the
+        # fluid's times its scale, so forward Euler is stable while their product is small
+        _, (zeta, heavy), _ = global_reduce(ctx.comm, maxs=(
+            float(p["nu"][:n][own_fluid].max()) * dt / (h * h) if own_fluid.any() else 0.0,
+            float(solid[:n][own_solid].max()) if own_solid.any() else 0.0))
         mode = self.num.viscous_solver
-        explicit = not coupled and (mode == "explicit" or (
-            mode == "auto" and zeta < self.num.explicit_viscous_number))
+        explicit = mode == "explicit" or (
+            mode == "auto" and zeta * max(1.0, heavy) < self.num.explicit_viscous_number)
         self._jacobi = zeta < self.num.explicit_viscous_number  # (docs/solvers.md)
         # an implicit step projects first unless the paper's order is asked for: with
         # nu dt / h^2 >> 1 the viscous predictor would carry part of the weight to a
@@ -429,10 +431,13 @@ class IISPH:
             self._halo(ctx, ["v_ghost"])
             t0 = time.perf_counter()
             vexp = viscous.viscous_explicit(x, p["v"], p["v_ghost"], m, rho, p["nu"], fluid,
-                                             slip, indptr, indices, h, dim, dt, g, morris)
-            vs[:n][own_fluid] = vexp[own_fluid]
+                                             solid, slip, indptr, indices, h, dim, dt, g, morris)
+            np.copyto(vs[:n], vexp, where=moved[:, None])
+            if coupled:  # the viscous exchange of eq. (47), as a solve's
+                self.solid_viscous_dv = np.where(own_solid[:, None], vexp - p["v"][:n], 0.0)
+            vexp = None
             t_asm += time.perf_counter() - t0
-            self._halo(ctx, ["v_star"])
+            self._halo(ctx, ["v_star", "a_self"] if coupled else ["v_star"])
         else:  # the paper's order: the viscous predictor (30) first
             self._halo(ctx, ["nu", "a_self"] if coupled else ["nu"])
             info_v, dt_asm = self._viscous_solve(ctx, visc, order, dt, g, morris, m, row,
@@ -502,13 +507,8 @@ class IISPH:
                 # the fluid's pressure over its fluid neighbours only, and each solid
                 # neighbour's (type II in contact: a no-penetration multiplier) by the
                 # symmetric pair of eq. (37), the exact reaction of the force the solid
-                # gets (eq. (45)). With the boundaries in the corrected sum the gradient
-                # of a lone particle on a floor tilted by 8 % and pushed it back at
-                # 5 cm/s; without the solids a surface particle pushed a solid without
-                # being pushed back (a block twice as dense as water gained 3x the energy
-                # gravity can supply); with the walls' pair too, the surface particles of
-                # a tank at rest were pushed off the side walls. Walls hold a surface
-                # particle through the contact rule below (docs/coupling.md)
+                # gets (eq. (45)); walls hold a surface particle through the contact rule
+                # below (docs/coupling.md, "Free-surface rows next to a solid")
                 wet = (fluid == 1).astype(np.uint8)
                 corr = assembly.pressure_gradient_corrected(x, p["p"], m, rho, surface, indptr,
                                                             indices, h, dim, wet)

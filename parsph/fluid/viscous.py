@@ -432,10 +432,10 @@ def ghost_velocity(x, v, fluid, slip, indptr, indices, h, dim, out):
 
 
 @njit(cache=True, error_model="numpy")
-def viscous_explicit(x, v, v_ghost, m, rho, nu, fluid, slip, indptr, indices, h, dim, dt, g,
-                     morris):
-    r"""Explicit viscous predictor of the owned fluid rows: eq. (30) with the viscous term
-    (34) (or Morris et al. 1997) evaluated at :math:`\mathbf{v}^\beta`,
+def viscous_explicit(x, v, v_ghost, m, rho, nu, fluid, solid, slip, indptr, indices, h, dim,
+                     dt, g, morris):
+    r"""Explicit viscous predictor of the owned fluid and type-II solid rows: eq. (30) with
+    the viscous term (34) (or Morris et al. 1997) evaluated at :math:`\mathbf{v}^\beta`,
 
     .. math:: \mathbf{v}^*_i = \mathbf{v}_i + \Delta t\,\mathbf{g}
               + \sum_j c_{ij} \mathbf{r}_{ij} \mathbf{r}_{ij}^T (\mathbf{v}_i - \mathbf{v}_j),
@@ -444,29 +444,40 @@ def viscous_explicit(x, v, v_ghost, m, rho, nu, fluid, slip, indptr, indices, h,
     free-slip walls left out). It is one step of forward instead of backward Euler on the
     same operator; the two differ by O(zeta^2) for a viscous number
     :math:`\zeta = \nu \Delta t / h^2`, and forward Euler is stable below about 0.1
-    (Morris et al. 1997). Other rows: ``v``. Shape (n_owned, dim)."""
+    (Morris et al. 1997).
+
+    Coupling (eq. (47)), as in :func:`viscous_csr`: a fluid row sees a solid neighbour
+    (``solid[j] > 0``) at its own velocity ``v[j]`` (the TLSPH predictor), and a solid row
+    (``solid[i] > 0``, ``v[i]`` its predictor, no ``dt g``: the predictor has it) moves by
+    the pairs with its fluid neighbours times ``solid[i]`` = (mass the fluid sees) / (true
+    mass): the forces between the phases are equal and opposite. Other rows: ``v``.
+    Shape (n_owned, dim)."""
     n = indptr.shape[0] - 1
     out = np.empty((n, dim))
     eta2 = ETA2 * h * h
     k = constants(h, dim)
     for i in range(n):
-        if not fluid[i]:
+        fi = fluid[i]
+        if not fi and solid[i] <= 0.0:
             for a in range(dim):
                 out[i, a] = v[i, a]
             continue
+        scale = 1.0 if fi else solid[i]
         vi0, vi1, vi2 = _vec(v, i, dim)
-        o0 = vi0 + dt * g[0]
-        o1 = vi1 + dt * g[1]
-        o2 = vi2 + dt * g[2] if dim == 3 else 0.0
+        o0, o1, o2 = vi0, vi1, vi2
+        if fi:
+            o0 += dt * g[0]
+            o1 += dt * g[1]
+            o2 += dt * g[2] if dim == 3 else 0.0
         for p in range(indptr[i], indptr[i + 1]):
             j = indices[p]
             fj = fluid[j]
-            if not fj and slip[j]:
+            if not fj and (slip[j] or not fi):  # a solid row: its fluid neighbours only
                 continue
             d0, d1, d2, r2 = delta(x, i, j, dim)
-            u0, u1, u2 = _vec(v if fj else v_ghost, j, dim)
+            u0, u1, u2 = _vec(v if fj or solid[j] > 0.0 else v_ghost, j, dim)
             e0, e1, e2 = vi0 - u0, vi1 - u1, vi2 - u2
-            c = _viscous_pair(m, rho, nu, fluid, i, j, r2, k, dim, dt, eta2, morris)
+            c = _viscous_pair(m, rho, nu, fluid, i, j, r2, k, dim, dt, eta2, morris) * scale
             if morris:
                 o0 += c * e0
                 o1 += c * e1

@@ -68,8 +68,9 @@ class FluidNumerics:
     viscous_solver: str = spec("auto", doc="viscous predictor (30): implicit (a PETSc solve "
                                "each step, as the paper) | explicit (the same operator at v^beta, "
                                "no matrix) | auto (explicit while the largest viscous number "
-                               "nu dt / h^2 of the fluid is below explicit_viscous_number, else "
-                               "implicit; coupled steps are always implicit; docs/iisph.md)",
+                               "nu dt / h^2 of the fluid, times the largest scale of a solid in "
+                               "contact (its mass the fluid sees over its true mass, when over 1), "
+                               "is below explicit_viscous_number, else implicit; docs/iisph.md)",
                                choices=("auto", "implicit", "explicit"))
     viscous_operator: str = spec("matrix_free", doc="an implicit viscous solve's operator: "
                                  "matrix_free (the pairs of eq. (34) applied in GMRES, BoomerAMG "
@@ -98,9 +99,10 @@ class FluidNumerics:
     explicit_viscous_number: float = spec(0.01, doc="auto: largest nu dt / h^2 solved "
                                           "explicitly (water at the CFL step: ~1e-3; a Bingham "
                                           "fluid: 1e2 and more; forward Euler is stable below "
-                                          "~0.1); an implicit (coupled) solve below it is "
-                                          "preconditioned by Jacobi, not BoomerAMG "
-                                          "(docs/solvers.md)", gt=0.0, le=0.1)
+                                          "~0.1); an implicit solve below it (fluid.viscous_"
+                                          "solver = implicit, a light solid) is preconditioned "
+                                          "by Jacobi, not BoomerAMG (docs/solvers.md)",
+                                          gt=0.0, le=0.1)
     clamp_negative_pressure: bool = spec(True, doc="set negative PPE pressures to 0 before the "
                                          "corrector (Koshizuka & Oka 1996)")
     ppe_rtol: float = spec(1e-8, doc="relative tolerance of the pressure solve (ppe_ksp_rtol)",
