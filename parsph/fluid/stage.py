@@ -423,12 +423,11 @@ class IISPH:
             np.add(vs[:n], dt * g, out=vs[:n], where=own_fluid[:, None])
             self._halo(ctx, ["v_star", "a_self"] if coupled else ["v_star"])
         elif explicit:  # zeta << 1: forward Euler on the operator of eq. (34), no matrix
-            self._halo(ctx, ["nu"])
             t0 = time.perf_counter()
             viscous.ghost_velocity(x, p["v"], fluid, slip, indptr, indices, h, dim,
                                     p["v_ghost"])
             t_asm += time.perf_counter() - t0
-            self._halo(ctx, ["v_ghost"])
+            self._halo(ctx, ["nu", "v_ghost"])
             t0 = time.perf_counter()
             vexp = viscous.viscous_explicit(x, p["v"], p["v_ghost"], m, rho, p["nu"], fluid,
                                              solid, slip, indptr, indices, h, dim, dt, g, morris)
