@@ -432,8 +432,6 @@ class IISPH:
             vexp = viscous.viscous_explicit(x, p["v"], p["v_ghost"], m, rho, p["nu"], fluid,
                                              solid, slip, indptr, indices, h, dim, dt, g, morris)
             np.copyto(vs[:n], vexp, where=moved[:, None])
-            if coupled:  # the viscous exchange of eq. (47), as a solve's
-                self.solid_viscous_dv = np.where(own_solid[:, None], vexp - p["v"][:n], 0.0)
             vexp = None
             t_asm += time.perf_counter() - t0
             self._halo(ctx, ["v_star", "a_self"] if coupled else ["v_star"])
@@ -517,6 +515,8 @@ class IISPH:
                 grad[surface == 1] = corr[surface == 1]
         vnew = vs[:n] - dt * grad / rho0[:n, None]
         if own_solid.any():  # eq. (48): the reaction of the fluid pressure, eq. (45)
+            if explicit:  # the viscous exchange of eq. (47), as a solve's (not held by the PPE)
+                self.solid_viscous_dv = np.where(own_solid[:, None], vs[:n] - p["v"][:n], 0.0)
             mark = np.zeros(len(fluid))
             mark[:n][own_solid] = solid[:n][own_solid]
             force = response.solid_pressure_force(x, p["p"], m, rho, rho0, fluid, mark,
