@@ -322,6 +322,53 @@ def test_explicit_viscous_predictor_is_the_implicit_operator_at_v(morris):
     assert np.array_equal(vstar[3], v[3])  # walls keep their velocity
 
 
+def test_dry_walls_beyond_the_fluids_reach_leave_the_systems(comm, mpi_tmp_path, monkeypatch):
+    """The fluid step's rows are the fluid, the boundary rows it touches and the walls of
+    the band (within two cells of the fluid at the last sync step), not every wall: a dam
+    break's dry walls were identity rows (p = 0) that only cost. The run matches the one
+    with every wall a row (the band widened to all walls) to round-off, with the same
+    PPE iterations and set-ups, and its walls out of the systems have p = 0."""
+    import parsph.fluid.stage as fluid_stage
+    import parsph.step.refresh as refresh
+
+    over = ["domain.particle_size=0.0146", "run.end_time=0.1", "output.every=0.05"]
+    rows, real_rows, real_csr = [], fluid_stage.system_rows, refresh.build_csr
+
+    def counted(ctx, fluid, is_wall):
+        act = real_rows(ctx, fluid, is_wall)
+        rows.append((int(act.sum()), int(is_wall.sum())))
+        return act
+
+    def every_wall(x, n_query, radius, active=None, near=None):
+        out = real_csr(x, n_query, radius, active, near)
+        if near is not None:
+            near[:] = 1
+        return out
+
+    monkeypatch.setattr(fluid_stage, "system_rows", counted)
+    _, band, _ = _run(comm, mpi_tmp_path, "dam_break", over, sub="band")
+    band_rows = np.array(rows)
+    monkeypatch.setattr(refresh, "build_csr", every_wall)
+    rows.clear()
+    _, walls, _ = _run(comm, mpi_tmp_path, "dam_break", over, sub="walls")
+    all_rows = np.array(rows)
+    n, n_all = (comm.allreduce(int(r[:, 0].sum())) for r in (band_rows, all_rows))
+    assert n < 0.9 * n_all  # dry walls left out
+    if comm.rank == 0:
+        a, b = read_stats(os.path.join(band, "stats.csv")), read_stats(os.path.join(walls,
+                                                                           "stats.csv"))
+        assert np.array_equal(a["ppe_iterations"], b["ppe_iterations"])
+        assert np.array_equal(a["ppe_setup"], b["ppe_setup"])
+        fa, fb = last_frame(band), last_frame(walls)
+        assert np.abs(fa["x"] - fb["x"]).max() < 1e-9
+        dry = (fa["phase"] == 2) & (fa["p"] == 0.0)
+        assert dry.sum() > 0.5 * (fa["phase"] == 2).sum()
+        print(f"rows {n} against {n_all} (summed over the steps); "
+              f"max |dx| {np.abs(fa['x'] - fb['x']).max():.2e} m, max |dp| "
+              f"{np.abs(fa['p'] - fb['p']).max():.2e} Pa of {fb['p'].max():.3g}")
+        assert np.abs(fa["p"] - fb["p"]).max() < 1e-6 * fb["p"].max()
+
+
 def test_auto_viscous_solver_is_explicit_for_water_and_agrees_with_implicit(comm, mpi_tmp_path):
     """A dam break of a fluid 1000x as viscous as water (nu = 1e-3 m^2/s): ``auto`` takes
     the explicit predictor (no viscous solve) in the steps whose viscous number

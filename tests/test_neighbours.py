@@ -255,6 +255,34 @@ def test_active_rows_keep_lists_only_where_an_active_row_is_near(case, data):
         assert np.array_equal(plain[1], every[1]) and np.array_equal(plain[0], every[0])
 
 
+@given(case=point_sets(), data=st.data())
+@SETTINGS
+def test_near_marks_every_row_within_two_radii_of_an_active_row(case, data):
+    """``near``: 1 for every query row within two radii of an active row (the fluid
+    step's wall band, parsph.fluid.walls.system_rows), 0 for every row farther than the
+    two cells' reach (3 sqrt(3) cells of a radius) on the dense grid; the lists are those
+    without it."""
+    x, n_query, radius = case
+    active = np.asarray(data.draw(hnp.arrays(np.bool_, len(x))), dtype=bool)
+    near = np.full(n_query, 7, dtype=np.uint8)
+    got = build_csr(x, n_query, radius, active=active, near=near)
+    ref = build_csr(x, n_query, radius, active=active)
+    assert np.array_equal(got[0], ref[0]) and np.array_equal(got[1], ref[1])
+    assert set(np.unique(near)) <= {0, 1}
+    if not active.any() or not n_query:
+        return
+    pts = np.asarray(x, dtype=float).reshape(len(x), -1)
+    gap = np.sqrt(((pts[:n_query, None, :] - pts[None, active, :]) ** 2).sum(axis=2)).min(axis=1)
+    assert np.all(near[gap < 2 * radius] == 1)
+    from parsph.core.cells import _DENSE_MIN, _DENSE_PER_PARTICLE, _cell_size
+
+    span = pts.max(axis=0) - pts.min(axis=0)
+    cell = _cell_size(radius, float(span.max()), 1)
+    if np.prod(np.floor(span / cell) + 1.0) <= _DENSE_PER_PARTICLE * len(pts) + _DENSE_MIN:
+        # (on the sparse grid of a huge box the cells are not known: every row is near)
+        assert np.all(near[gap > 3 * np.sqrt(3) * cell * (1 + 1e-9)] == 0)
+
+
 def test_active_must_flag_every_row():
     x = np.zeros((5, 2))
     x[:, 0] = np.arange(5)

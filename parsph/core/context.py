@@ -42,6 +42,9 @@ class Context:
     #: stage), whose kernels read a boundary row's neighbours only when the fluid touches
     #: it: a wall or solid row then gets its list only when a fluid row is within reach.
     wet_lists: bool = False
+    #: With ``wet_lists``: 1 for the owned rows within two cells (at least 2 radii) of a
+    #: fluid row when the lists were built (``build_csr``'s ``near``), else None.
+    near_fluid: np.ndarray = None
     #: Fields the current-configuration halo does not carry (their halo rows are zero):
     #: in the mixed layout the solid's state, which only the solid's view reads, on its
     #: own reference halo (docs/performance.md).

@@ -249,6 +249,17 @@ def _fill_gather(xs, order, n_query, r2max, lo, inv_cell, ncell, reach, sparse, 
 
 
 @njit(cache=True, error_model="numpy")
+def _near_rows(xs, order, n_query, lo, inv_cell, ncell, near_cells, out):
+    """``out[i]`` = whether query row ``i`` lies in a cell that ``near_cells`` marks (all
+    rows if it is empty: not known)."""
+    for s in range(xs.shape[0]):
+        i = order[s]
+        if i < n_query:
+            out[i] = 1 if near_cells.shape[0] == 0 or near_cells[
+                cell_of(xs, s, lo, inv_cell, ncell)] else 0
+
+
+@njit(cache=True, error_model="numpy")
 def _disorder(order):
     """Mean |row difference| of consecutive slots over the row count (0 = coherent)."""
     n = order.shape[0]
@@ -268,7 +279,7 @@ def _running_count(flags):
 # --------------------------------------------------------------------------- public
 
 
-def build_csr(x, n_query, radius, active=None):
+def build_csr(x, n_query, radius, active=None, near=None):
     """Neighbour lists of ``x[:n_query]`` among all rows of ``x``, in CSR form.
 
     Parameters
@@ -287,6 +298,11 @@ def build_csr(x, n_query, radius, active=None):
         only when an active row is among its neighbours, and an empty list otherwise
         (an IISPH step reads a boundary row's neighbours only when the fluid touches it:
         dry walls and type-I solids need none). Default: every row active.
+    near : numpy.ndarray of uint8, shape (n_query,), optional
+        With ``active``: set to 1 for the query rows within two cells (at least two
+        radii) of an active row, 0 for the others, the rows the count pass searches
+        (the fluid step keeps its wall rows to these between sync steps,
+        :func:`parsph.fluid.walls.system_rows`).
 
     Returns
     -------
@@ -318,6 +334,8 @@ def build_csr(x, n_query, radius, active=None):
     if n > _INT32_MAX:
         raise ValueError(f"at most {_INT32_MAX} rows are supported (int32 indices), got {n}")
     indptr = np.zeros(n_query + 1, dtype=np.int64)
+    if near is not None:
+        near[:n_query] = 1  # (below: where an active row is within reach)
     r2max = radius * radius
     if n_query == 0 or n < 2 or r2max == 0.0:  # (radius**2 may underflow to 0)
         return indptr, np.empty(0, dtype=np.int32)
@@ -339,6 +357,8 @@ def build_csr(x, n_query, radius, active=None):
         act_s = _running_count(active[order])
         ncell, reach, sparse, start = grid[2:6]
         near_cells = reachable_cells(active[order], ncell, 2 * reach, sparse, start)
+        if near is not None:
+            _near_rows(xs, order, n_query, grid[0], grid[1], ncell, near_cells, near)
     keep = np.zeros(n_query, dtype=np.uint8)
     keep_s = np.zeros(n, dtype=np.uint8)
     _count(xs, order, n_query, r2max, *grid, indptr, act_s, near_cells, keep, keep_s)

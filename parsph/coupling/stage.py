@@ -48,7 +48,7 @@ VIEW_STATE = ("F", "tau", "eps_e", "lapv")
 #: coupling's own (the fluid's force on a solid is read from the main set). Copied into
 #: the view they had cost 160 bytes per solid particle.
 MAIN_ONLY = ("nu", "v_star", "v_ghost", "free_surface", "wall_slip", "fluid_row", "p_ppe",
-             "fluidised", "inv_mass", "a_self", "fsi_force")
+             "ppe_band", "fluidised", "inv_mass", "a_self", "fsi_force")
 
 #: Fields of the main set no stage reads on its current-configuration halo rows: the
 #: solid's state (the TLSPH step reads it in the view, on the view's reference halo) and
@@ -56,7 +56,7 @@ MAIN_ONLY = ("nu", "v_star", "v_ghost", "free_surface", "wall_slip", "fluid_row"
 #: migrate) 375 of a 3D row's 613 bytes, which had been 40 % of the 2-rank halo
 #: exchange's time (docs/performance.md).
 HALO_SKIP = VIEW_STATE + ("X", "eps_p", "p_c", "porosity", "modulus", "ref_count0",
-                          "solid_init", "fluidised")
+                          "solid_init", "fluidised", "ppe_band")
 
 #: stats.csv columns of the coupling; ``fsi_force_*`` (N, N/m in 2D) is the net force of
 #: the fluid on the solid (eq. (45), pressure and viscous parts) before constraints.

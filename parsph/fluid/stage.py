@@ -37,7 +37,7 @@ from decomposition.reduce import global_any, global_max, global_min, global_redu
 from parsph.fluid import assembly, response, rheology, viscous
 from parsph.fluid.ppe import ppe_csr
 from parsph.core.contact import wall_contact
-from parsph.fluid.walls import wall_slip
+from parsph.fluid.walls import system_rows, wall_slip
 from parsph.scene.materials import PHASE_FLUID, PHASE_WALL
 from solvers.csr import scale_rows, sort_neighbours_by_row, unit_diagonal
 
@@ -131,6 +131,7 @@ class IISPH:
         # row's p is its mean stress, which the TLSPH stage writes, not an interface
         # pressure: as a guess it made GMRES diverge at once where the soil failed)
         p.add_field("p_ppe")
+        p.add_field("ppe_band", dtype=np.uint8)  # the wall rows till the next sync step
         self.table = rheology.material_table(ctx.materials)
         n = p.n_owned
         fluid = p["phase"][:n] == PHASE_FLUID
@@ -353,12 +354,10 @@ class IISPH:
         solid = coupling.scale if coupled else np.zeros(len(fluid))
         if coupled:
             p["inv_mass"][:n] = coupling.inv_mass
-        # rows of the systems: fluid rows, boundary rows with a fluid neighbour and every
-        # wall row (a dry one is the identity row p = 0, v = v_wall): the rows then stay the
-        # same particles while the fluid runs along a wall, which keeps the AMG set-up
+        # rows of the systems: fluid rows, boundary rows with a fluid neighbour and the
+        # walls the fluid can reach before the next sync step (walls.system_rows)
         is_wall = p["phase"][:n] == PHASE_WALL
-        act = (fluid[:n] | assembly.has_fluid_neighbour(fluid, ctx.indptr, ctx.indices)
-               | is_wall) == 1
+        act = system_rows(ctx, fluid, is_wall)
         # the rows in order: fluid and solid rows, then the walls (see _row_order)
         order = self._row_order(act, is_wall)
         n_act = len(order)

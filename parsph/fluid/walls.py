@@ -1,12 +1,14 @@
-"""Which slip condition (no-slip / free-slip) a wall particle has.
+"""Wall particles in the fluid step: their slip condition, and which of them are rows.
 
 Every particle carries ``body``, the index of the body or wall it was generated from in
 ``scene.bodies + scene.walls`` (walls after the bodies); a wall particle's slip is the
-``slip`` key of its wall.
+``slip`` key of its wall. :func:`system_rows` picks the rows of the step's systems.
 """
 from __future__ import annotations
 
 import numpy as np
+
+from parsph.fluid.assembly import has_fluid_neighbour
 
 NO_SLIP, FREE_SLIP = 0, 1
 
@@ -30,3 +32,30 @@ def wall_slip(scene, body, is_wall) -> np.ndarray:
     wall = np.asarray(body)[is_wall] - len(scene.bodies)
     slip[is_wall] = free[np.where((wall >= 0) & (wall < len(scene.walls)), wall, -1)]
     return slip
+
+
+def system_rows(ctx, fluid, is_wall) -> np.ndarray:
+    """The owned rows of the fluid step's systems (bool, shape (n_owned,)): the fluid rows,
+    the boundary rows with a fluid neighbour and the walls of the band.
+
+    A wall row without a fluid neighbour is an identity row (p = 0, v = v_wall). Every
+    wall had been such a row, so that the rows stayed the same particles while the fluid
+    ran along a wall and the PPE's AMG set-up could be lagged; in the 3D dam break of
+    ``jobs/bench_splishsplash.py`` that made 48,456 of its 72,790 rows. The band is the
+    walls within two cells (at least two radii) of a fluid row at a sync step
+    (``build_csr``'s ``near``, kept in the ``ppe_band`` field, which moves with the
+    particles) until the next one: the fluid wets a wall outside it only by crossing a
+    radius within those steps, and then the rows change and the set-up is made afresh,
+    as after any change of the rows. The walls left out get p = 0, as their identity
+    rows gave."""
+    p, n = ctx.particles, ctx.n_owned
+    band = p["ppe_band"]
+    if ctx.step % max(1, ctx.sync_every) == 0:
+        near = ctx.near_fluid
+        band[:n] = is_wall & (near[:n] == 1) if near is not None and len(near) >= n \
+            else is_wall
+    act = (fluid[:n] | has_fluid_neighbour(fluid, ctx.indptr, ctx.indices) | band[:n]) == 1
+    idle = is_wall & ~act
+    p["p"][:n][idle] = 0.0
+    p["p_ppe"][:n][idle] = 0.0
+    return act

@@ -241,10 +241,13 @@ def refresh(ctx, force_partition: bool = False) -> None:
     def neighbours():
         if current:
             wet = p["phase"] == PHASE_FLUID if ctx.wet_lists else None
+            ctx.near_fluid = np.zeros(p.n_owned, dtype=np.uint8) if ctx.wet_lists else None
             ctx.indptr = ctx.indices = None  # the last lists are not held beside the new
-            ctx.indptr, ctx.indices = build_csr(p[key], p.n_owned, ctx.radius, wet)
+            ctx.indptr, ctx.indices = build_csr(p[key], p.n_owned, ctx.radius, wet,
+                                                ctx.near_fluid)
         else:
             ctx.indptr = np.zeros(p.n_owned + 1, dtype=np.int64)
             ctx.indices = np.zeros(0, dtype=np.int64)
+            ctx.near_fluid = np.zeros(p.n_owned, dtype=np.uint8)
 
     timed(ctx, "neighbours", neighbours)
