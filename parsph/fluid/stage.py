@@ -375,7 +375,7 @@ class IISPH:
         # place: nothing reads the lists in ascending order after this (they are built
         # afresh for the next step)
         indptr, indices = ctx.indptr, sort_neighbours_by_row(ctx.indptr, ctx.indices, row,
-                                                             inplace=True)
+                                                             inplace=True, ascending=True)
         slip = p["wall_slip"]
         rho, rho0 = p["rho"], p["rho0"]
         free = p["free_surface"]
