@@ -75,6 +75,11 @@ class Context:
     wall_cache: tuple = None
 
     @property
+    def at_sync_step(self) -> bool:
+        """Whether ``step`` is a sync step (``step % sync_every == 0``)."""
+        return self.step % self.sync_every == 0
+
+    @property
     def n_owned(self) -> int:
         return self.particles.n_owned
 

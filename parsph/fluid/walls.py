@@ -50,7 +50,7 @@ def system_rows(ctx, fluid, is_wall) -> np.ndarray:
     rows gave."""
     p, n = ctx.particles, ctx.n_owned
     band = p["ppe_band"]
-    if ctx.step % max(1, ctx.sync_every) == 0:
+    if ctx.at_sync_step:
         near = ctx.near_fluid
         band[:n] = is_wall & (near[:n] == 1) if near is not None and len(near) >= n \
             else is_wall

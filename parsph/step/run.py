@@ -273,11 +273,8 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
                          fault=faults.checkpoint_fault(ctx.step), rcb_ref=ctx.rcb_ref,
                          rcb_wall=ctx.rcb_wall, more=ctx.fields_one_at_a_time())
 
-    def at_sync_step():
-        return ctx.step % ctx.sync_every == 0
-
     def finished():
-        return ctx.time >= end - 1e-12 * end and at_sync_step()
+        return ctx.time >= end - 1e-12 * end and ctx.at_sync_step
 
     show = scene.output.progress if progress is None else progress
     bar = Progress(end, enabled=show and comm.rank == 0)
@@ -315,7 +312,7 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
             check_state(ctx)
             # a sync step: every stray particle moves to its owner and the next solves
             # set up afresh, as after a restart from here
-            ctx.sync_point = at_sync_step()
+            ctx.sync_point = ctx.at_sync_step
             refresh(ctx)
             if ctx.sync_point:
                 _renew_preconditioners(stages)
@@ -337,11 +334,11 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
             last.update(ke=row["kinetic_energy"], ee=ee)
             stats.write(row)
             bar.update(ctx.time, ctx.step)
-            if ctx.time >= next_ck - 1e-9 * ck_every and at_sync_step():
+            if ctx.time >= next_ck - 1e-9 * ck_every and ctx.at_sync_step:
                 next_ck = _next_time(ctx.time, ck_every)
                 write_checkpoint()
             stopping = stopping or global_any(comm, stop.signal is not None)
-            if stopping and at_sync_step():
+            if stopping and ctx.at_sync_step:
                 write_checkpoint()
                 _finish(ctx, stages)
                 bar.close()
