@@ -20,34 +20,48 @@ def sort_neighbours_by_row(indptr, indices, row, inplace=False, ascending=False)
     or ``indices`` itself sorted with ``inplace`` (a list of the step's pairs less).
 
     ``ascending``: the caller's lists are in ascending index order (``build_csr``'s).
-    When the rows in the systems (``row >= 0``) also ascend with the index (one rank, the
-    walls numbered after the fluid and the solids, as the particles are stored), those
-    entries are in row order already and the lists are returned as they are: the
-    entries outside the systems (``row < 0``, which the kernels skip) keep their places
-    instead of going first. The per-list check of that order had cost 3 ms per step of
-    the 3D dam break of ``jobs/bench_splishsplash.py``."""
+    The particles then split, by index, into the stretches over which the rows in the
+    systems (``row >= 0``) strictly ascend (:func:`_ascending_runs`); a list whose first
+    and last entries lie in one stretch has its entries of rows ``>= 0`` in row order
+    already and is left as it is (its entries outside the systems, which the kernels
+    skip, keep their places instead of going first). On one rank that is every list
+    (one stretch: the walls are numbered after the fluid and the solids, as they are
+    stored); on several only the lists that reach into the halo, or across the
+    particles a rank received, are sorted. The per-list check of the order had cost
+    3 ms per step of the 3D dam break of ``jobs/bench_splishsplash.py`` on one rank,
+    and 3.0 and 3.8 ms on the two ranks of the 3D tank of ``jobs/bench_memory.py``."""
     out = indices if inplace else indices.copy()
-    if not (ascending and _rows_ascend(row)):
-        _sort_by_row(indptr, out, row)
+    if ascending:
+        run, n_runs = _ascending_runs(row)
+        if n_runs > 1:
+            _sort_by_row(indptr, out, row, run)
+    else:
+        _sort_by_row(indptr, out, row, np.empty(0, dtype=np.int32))
     return out
 
 
 @njit(cache=True, error_model="numpy")
-def _rows_ascend(row):
-    """Whether the entries ``row >= 0`` strictly ascend with their index."""
+def _ascending_runs(row):
+    """``(run, n)``: ``run[k]`` numbers the stretch of indices that ``k`` lies in, over
+    each of which the entries ``row >= 0`` strictly ascend (a new stretch begins at
+    each entry ``row >= 0`` not above the last one); ``n`` stretches in all."""
+    run = np.empty(row.shape[0], dtype=np.int32)
     last = -1
+    r = 0
     for k in range(row.shape[0]):
-        r = row[k]
-        if r >= 0:
-            if r <= last:
-                return False
-            last = r
-    return True
+        v = row[k]
+        if v >= 0:
+            if v <= last:
+                r += 1
+            last = v
+        run[k] = r
+    return run, r + 1
 
 
 @njit(cache=True, error_model="numpy")
-def _sort_by_row(indptr, out, row):
-    """Stable sort of each list of ``out`` by ``row``: a natural merge sort, one pass
+def _sort_by_row(indptr, out, row, run):
+    """Stable sort of each list of ``out`` by ``row``, except the lists whose first
+    and last entries have one ``run`` (:func:`_ascending_runs`; empty: none skipped): a natural merge sort, one pass
     per doubling of its ascending runs, with a scratch of the longest list (in L1).
 
     A list is mostly in order, but not always in few moves: on the rank whose halo rows
@@ -66,6 +80,8 @@ def _sort_by_row(indptr, out, row):
     for i in range(n):
         start, stop = indptr[i], indptr[i + 1]
         length = stop - start
+        if length == 0 or (run.shape[0] and run[out[start]] == run[out[stop - 1]]):
+            continue
         ordered = True
         for p in range(start + 1, stop):
             if row[out[p]] < row[out[p - 1]]:

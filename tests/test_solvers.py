@@ -995,33 +995,47 @@ def test_operator_system_correct_solves_its_rows_exactly_after_the_amg(comm):
 
 
 def test_sort_neighbours_by_row_keeps_ascending_lists_whose_rows_ascend():
-    """``ascending`` (lists in index order, as build_csr gives them): when the rows in
-    the systems ascend with the index the lists come back as they are, and their entries
-    of rows >= 0 are in row order; otherwise they are sorted as without the flag."""
+    """``ascending`` (lists in index order, as build_csr gives them): a list within one
+    stretch of indices over which the rows in the systems ascend comes back as it is;
+    a list across stretches is sorted as without the flag. Either way its entries of
+    rows >= 0 are in row order. Rows that ascend everywhere (one rank), in two stretches
+    (a halo of lower rows stored after the owned particles), or in many."""
     from solvers.csr import sort_neighbours_by_row
 
     rng = np.random.default_rng(11)
-    for trial in range(40):
+    for trial in range(60):
         n_points = int(rng.integers(2, 200))
         lengths = rng.integers(0, 40, 25)
-        indptr = np.concatenate(([0], np.cumsum(lengths))).astype(np.int64)
         indices = np.concatenate([np.sort(rng.choice(n_points, min(k, n_points), replace=False))
                                   for k in lengths] + [np.empty(0)]).astype(np.int32)
         indptr = np.concatenate(([0], np.cumsum([min(k, n_points) for k in lengths])))
         inside = rng.random(n_points) < 0.7
         row = np.full(n_points, -1, dtype=np.int64)
         row[inside] = np.cumsum(rng.integers(1, 3, inside.sum()))  # ascending
-        if trial % 2:  # not ascending: sorted as without the flag
+        if trial % 3 == 1:  # two stretches: the upper part of the rows first
+            cut = int(rng.integers(0, inside.sum() + 1))
+            row[inside] = np.roll(row[inside], cut)
+        elif trial % 3 == 2:  # many
             row[inside] = rng.permutation(row[inside])
+        stretch = np.zeros(n_points, dtype=np.int64)  # the stretches, by their definition
+        last = -1
+        for k in range(n_points):
+            if row[k] >= 0:
+                stretch[k] = stretch[k - 1] + (row[k] <= last) if k else 0
+                last = row[k]
+            elif k:
+                stretch[k] = stretch[k - 1]
         out = sort_neighbours_by_row(indptr, indices, row, ascending=True)
         plain = sort_neighbours_by_row(indptr, indices, row)
-        if trial % 2 and not np.all(np.diff(row[inside]) > 0):
-            assert np.array_equal(out, plain)
-            continue
-        assert np.array_equal(out, indices)
         for i in range(len(lengths)):
-            r = row[out[indptr[i]:indptr[i + 1]]]
-            assert np.all(np.diff(r[r >= 0]) > 0)
+            a, b = indptr[i], indptr[i + 1]
+            mine = indices[a:b]
+            if b > a and stretch[mine[0]] == stretch[mine[-1]]:
+                assert np.array_equal(out[a:b], mine), (trial, i)
+            else:
+                assert np.array_equal(out[a:b], plain[a:b]), (trial, i)
+            r = row[out[a:b]]
+            assert np.all(np.diff(r[r >= 0]) > 0), (trial, i)
 
 
 def test_sort_neighbours_by_row_is_a_stable_sort_of_each_list():
