@@ -427,17 +427,20 @@ def _box_images(box, dim):
 
 
 @njit(cache=True, error_model="numpy")
-def _near_boxes(x, shift, lo, hi, radius):
-    """Rows whose image ``x + shift`` lies within ``radius`` of any box ``[lo[b], hi[b]]``
-    (one pass over the rows; an empty box, lo > hi on an axis, is near nothing)."""
+def _near_boxes(x, shift, lo, hi, reach, only, flag):
+    """Rows whose image ``x + shift`` lies within ``reach[b]`` of any box ``[lo[b],
+    hi[b]]`` (one pass over the rows; an empty box, lo > hi on an axis, is near
+    nothing); a box with ``only[b]`` is near the rows with ``flag`` set only."""
     n, dim = x.shape
     near = np.zeros(n, dtype=np.bool_)
     for i in range(n):
         for b in range(lo.shape[0]):
+            if only[b] and not flag[i]:
+                continue
             inside = True
             for a in range(dim):
                 y = x[i, a] + shift[a]
-                if not (y >= lo[b, a] - radius and y <= hi[b, a] + radius):
+                if not (y >= lo[b, a] - reach[b] and y <= hi[b, a] + reach[b]):
                     inside = False
                     break
             if inside:
@@ -446,20 +449,28 @@ def _near_boxes(x, shift, lo, hi, radius):
     return near
 
 
-def _image_send_lists(comm, x, boxes_of, radius, shifts, with_self_zero):
-    """Per destination: the rows (and their image offsets) near any of its boxes."""
+def _image_send_lists(comm, x, boxes_of, radius, shifts, with_self_zero, flag=None):
+    """Per destination: the rows (and their image offsets) near any of its boxes.
+
+    A box is ``(lo, hi)``, near the rows within ``radius`` of it, or ``(lo, hi, reach,
+    only)``: near the rows within ``reach`` of it, only those with ``flag`` set if
+    ``only``."""
     send, send_shift = [], []
     x = np.ascontiguousarray(x, dtype=np.float64).reshape(len(x), -1)
+    flag = np.zeros(len(x), dtype=np.bool_) if flag is None else flag
     for q, boxes in enumerate(boxes_of):
         rows, offs = [], []
-        boxes = [(blo, bhi) for blo, bhi in boxes if not np.any(blo > bhi)]
+        boxes = [tuple(b) + (radius, False)[len(b) - 2:] for b in boxes
+                 if not np.any(b[0] > b[1])]
         lo = np.array([b[0] for b in boxes], dtype=np.float64).reshape(len(boxes), x.shape[1])
         hi = np.array([b[1] for b in boxes], dtype=np.float64).reshape(len(boxes), x.shape[1])
+        reach = np.array([b[2] for b in boxes], dtype=np.float64)
+        only = np.array([b[3] for b in boxes], dtype=np.bool_)
         for k, s in enumerate(shifts):
             if k == 0 and q == comm.rank and not with_self_zero:
                 continue
             idx = np.flatnonzero(_near_boxes(x, np.asarray(s, dtype=np.float64), lo, hi,
-                                             float(radius)))
+                                             reach, only, flag))
             rows.append(idx)
             offs.append(np.repeat(s[None, :], len(idx), axis=0))
         send.append(np.concatenate(rows) if rows else np.zeros(0, dtype=np.int64))
@@ -500,63 +511,3 @@ def proximity_halo(comm, x_owned, select, radius: float, lo, hi, box=None) -> Ha
                                     _box_images(box, x.shape[-1]), True)
     return Halo.from_send_lists(comm, [rows[i] for i in send], shift if periodic else None,
                                 n_owned=len(x))
-
-
-@njit(cache=True, error_model="numpy")
-def _kind_bounds(x, solid, fluid):
-    """Per-axis bounds ``(lo, hi)``, each (3, dim), of the fluid rows, the other rows
-    (walls) and the solid rows of ``x``, in one pass (``inf``, ``-inf`` where a kind has
-    none): three masked copies and their reductions had cost 2.8 ms of a 3D coupled
-    step on 2 ranks."""
-    n, dim = x.shape
-    lo = np.full((3, dim), np.inf)
-    hi = np.full((3, dim), -np.inf)
-    for i in range(n):
-        k = 0 if fluid[i] else (2 if solid[i] else 1)
-        for a in range(dim):
-            lo[k, a] = min(lo[k, a], x[i, a])
-            hi[k, a] = max(hi[k, a], x[i, a])
-    return lo, hi
-
-
-def coupled_halo(comm, x_owned, solid, fluid, radius: float, box=None) -> Halo:
-    """Collective: the current-configuration halo of a coupled scene (mixed layout).
-
-    Solid rows are owned by their reference position, fluid and wall rows by their
-    current one, each kind by a partition of its own (``docs/decomposition.md``), so the
-    owned rows of a rank are three compact groups. Rank ``q`` receives every row within
-    ``radius`` of the bounding box of its fluid rows and of its wall rows (their
-    neighbours of any kind), and every row within ``radius`` of the bounding box of its
-    solid rows (the fluid neighbours that make a solid row type II, paper Fig. 2, and the
-    support density that decides its contact). No copies
-    to self except periodic images: with a periodic ``box`` every rank, itself included,
-    also gets the images of the rows within reach (the exchange shifts their ``x`` and
-    ``X``). A negative ``radius`` gives an empty pattern (no fluid anywhere).
-
-    Parameters
-    ----------
-    x_owned : ndarray (n_owned, dim)
-        Current positions (m).
-    solid, fluid : ndarray of bool (n_owned,)
-        Phase of the owned rows.
-    radius : float
-        Reach (m), the kernel support 2h.
-    """
-    x = np.asarray(x_owned, dtype=float)
-    if comm.size == 1 and not (box is not None and box.any_periodic):  # nothing to copy
-        return Halo._from_flat(comm, np.zeros(0, dtype=np.int64), np.zeros(1, dtype=np.int64),
-                               None, len(x))
-    solid = np.asarray(solid, dtype=bool)
-    fluid = np.asarray(fluid, dtype=bool)
-    dim = x.shape[1] if x.ndim == 2 else 0
-
-    if radius < 0:
-        lo, hi = np.full((3, dim), np.inf), np.full((3, dim), -np.inf)
-    else:
-        lo, hi = _kind_bounds(x.reshape(len(x), dim), solid, fluid)
-    boxes = comm.allgather(tuple((lo[k], hi[k]) for k in range(3)))
-    # every row near either box of each rank; to itself only the periodic images
-    periodic = box is not None and box.any_periodic
-    send, shift = _image_send_lists(comm, x, [list(b) for b in boxes], radius,
-                                    _box_images(box, x.shape[-1]), False)
-    return Halo.from_send_lists(comm, send, shift if periodic else None, n_owned=len(x))

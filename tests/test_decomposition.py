@@ -445,6 +445,62 @@ def test_halo_send_list_of_many_ranks_is_the_brute_force_one(dim, periodic_first
         assert list(zip(dest.tolist(), rows.tolist(), img.tolist())) == expect
 
 
+@pytest.mark.parametrize("dim, periodic", [(2, (False, False)), (3, (False, False, False)),
+                                           (2, (True, False))])
+def test_coupled_halo_holds_the_neighbourhood_of_every_row_the_fluid_can_wet(comm, dim,
+                                                                            periodic):
+    """``coupled_halo`` (rows owned anywhere, as the mixed layout's two partitions leave
+    them): owned + halo rows hold every row within 2h of each fluid row and of each row
+    with a fluid row within 2h (the rows with current lists), and every fluid row within
+    two radii of each row (the PPE's wall band), against brute force on the global set
+    under the minimum image; and nothing farther than 3 radii from the fluid's bounding
+    box (a long dry floor and a dry block stay home)."""
+    from decomposition.coupled import coupled_halo
+
+    rng = np.random.default_rng(dim + 7 * periodic[0])
+    hi = np.array((3.0, 1.0, 1.0)[:dim])
+    box = Box((0.0,) * dim, tuple(hi), periodic)
+    radius = 0.12
+    n_fluid, n_floor, n_block = 300, 900, 300
+    fluid_x = rng.random((n_fluid, dim)) * np.array((0.5, 0.6, 1.0)[:dim]) + 0.05
+    fluid_x[:, 0] += 2.3 if periodic[0] else 0.0  # across the periodic end from the floor's start
+    floor = rng.random((n_floor, dim)) * hi
+    floor[:, 1] *= 0.05  # a floor along the whole box
+    block = rng.random((n_block, dim)) * np.array((0.4, 0.5, 1.0)[:dim]) + 0.05
+    block[:, 0] += 0.4 if periodic[0] else 0.6  # beside the fluid; a dry far part
+    X = np.concatenate([fluid_x, floor, block])
+    kind = np.repeat([0, 1, 2], [n_fluid, n_floor, n_block])
+    mine = _split(comm, len(X), "shuffled", seed=3)  # any owner is correct
+    xo = X[mine]
+    halo = coupled_halo(comm, xo, kind[mine] == 0, radius, box)
+    got = halo.exchange({"x": xo, "id": mine.astype(np.int64)})
+    allx = np.concatenate([xo, got["x"]])
+    allid = np.concatenate([mine, got["id"]])
+    d2 = ((xo[:, None, :] - allx[None, :, :]) ** 2).sum(axis=-1)
+    dx = box.minimum_image(xo[:, None, :] - X[None, :, :])
+    d2g = (dx ** 2).sum(axis=-1)
+    wet = (kind[mine] == 0) | ((d2g < radius ** 2) & (kind == 0)[None, :]).any(axis=1)
+    assert wet.sum() < len(mine) or len(mine) == 0
+    for reach, rows, cols in ((radius, wet, np.ones(len(X), bool)),
+                              (2 * radius, np.ones(len(mine), bool), kind == 0)):
+        have = np.zeros((len(xo), len(X)), dtype=bool)
+        r, c = np.nonzero(d2 < reach * reach)
+        have[r, allid[c]] = True
+        want = (d2g < reach * reach) & cols[None, :]
+        clear = np.abs(np.sqrt(d2g) - reach) > 1e-9
+        missing = want & ~have & clear
+        missing[~rows] = False
+        assert not missing.any(), (reach, int(missing.sum()))
+    if not any(periodic):
+        flo, fhi = fluid_x.min(axis=0), fluid_x.max(axis=0)
+        gap = np.maximum(0.0, np.maximum(flo - got["x"], got["x"] - fhi))
+        assert np.all(np.sqrt((gap ** 2).sum(axis=1)) <= 3 * radius + 1e-12)
+        if comm.size > 1:
+            assert halo.n_halo > 0
+    else:
+        assert halo.n_halo > 0  # images across the periodic end
+
+
 def test_halo_rejects_bad_radius(comm):
     box = Box((0.0, 0.0), (0.3, 1.0), (True, False))
     rcb = RCB.build(comm, np.zeros((0, 2)), box)

@@ -8,7 +8,8 @@ import numpy as np
 
 from decomposition import raise_if_any
 from decomposition.exchange import migrate
-from decomposition.halo import Halo, coupled_halo
+from decomposition.coupled import coupled_halo
+from decomposition.halo import Halo
 from decomposition.partition import RCB, imbalance
 from decomposition.reduce import global_any, global_reduce
 from parsph.core.cells import masked_bounds
@@ -227,9 +228,8 @@ def refresh(ctx, force_partition: bool = False) -> None:
         if ctx.layout == "mixed":
             n = p.n_owned
             phase = p["phase"][:n]
-            ctx.halo = coupled_halo(ctx.comm, p["x"][:n], phase == PHASE_SOLID,
-                                    phase == PHASE_FLUID, ctx.radius if current else -1.0,
-                                    ctx.box)
+            ctx.halo = coupled_halo(ctx.comm, p["x"][:n], phase == PHASE_FLUID,
+                                    ctx.radius if current else -1.0, ctx.box)
         else:
             ctx.halo = Halo.build(ctx.comm, ctx.rcb, p[key][: p.n_owned], ctx.radius + ctx.skin,
                                   ctx.box)

@@ -1,0 +1,107 @@
+"""The current-configuration halo of a coupled scene: the rows near each rank's fluid
+and near its rows that the fluid can wet (the mixed layout, docs/decomposition.md)."""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from decomposition.halo import Halo, _box_images, _image_send_lists
+
+__all__ = ["coupled_halo"]
+
+
+@njit(cache=True, error_model="numpy")
+def _fluid_and_wet_bounds(x, fluid, shifts, flo, fhi, reach):
+    """Bounds ``(lo, hi)``, each (2, dim), of the fluid rows of ``x`` and of its other
+    rows that lie (an image ``x + shifts[k]`` of them) within ``reach`` of any of the
+    boxes ``[flo[b], fhi[b]]`` (``inf``, ``-inf`` where none); ``flo`` and ``fhi`` empty
+    (no boxes): the fluid rows' bounds only."""
+    n, dim = x.shape
+    lo = np.full((2, dim), np.inf)
+    hi = np.full((2, dim), -np.inf)
+    for i in range(n):
+        k = 0
+        if not fluid[i]:
+            k = -1
+            for s in range(shifts.shape[0]):
+                for b in range(flo.shape[0]):
+                    inside = True
+                    for a in range(dim):
+                        y = x[i, a] + shifts[s, a]
+                        if not (y >= flo[b, a] - reach and y <= fhi[b, a] + reach):
+                            inside = False
+                            break
+                    if inside:
+                        k = 1
+                        break
+                if k == 1:
+                    break
+            if k < 0:
+                continue
+        for a in range(dim):
+            lo[k, a] = min(lo[k, a], x[i, a])
+            hi[k, a] = max(hi[k, a], x[i, a])
+    return lo, hi
+
+
+def coupled_halo(comm, x_owned, fluid, radius: float, box=None) -> Halo:
+    """Collective: the current-configuration halo of a coupled scene (mixed layout).
+
+    The current-configuration lists serve the IISPH step only (``Context.wet_lists``):
+    a fluid row has one, and a wall or solid row only when a fluid row is within
+    ``radius`` (then its whole neighbourhood: the type-II test, the support density
+    that decides its contact). Rank ``q`` therefore receives every row within
+    ``radius`` of the bounding box of its fluid rows, and of the bounding box of its
+    other rows that lie within ``2 radius`` of any rank's fluid box (the rows that can
+    be wet: its *wet box*), and every fluid row within ``2 radius`` of its wet box (the
+    walls within two radii of the fluid make the PPE's band,
+    :func:`parsph.fluid.walls.system_rows`). Rows are owned by two partitions (solids by
+    their reference position, fluid and walls by their current one), so a rank's rows
+    form compact groups, but its solid and wall boxes reach far beyond the fluid: with
+    those boxes the two ranks of the 3D tank of ``jobs/bench_memory.py`` received
+    10,093 and 6,906 halo rows, of which their lists used 2,593 each.
+
+    No copies to self except periodic images: with a periodic ``box`` every rank,
+    itself included, also gets the images of the rows within reach of its boxes (the
+    exchange shifts their ``x`` and ``X``). A negative ``radius`` gives an empty pattern
+    (no fluid anywhere).
+
+    Parameters
+    ----------
+    x_owned : ndarray (n_owned, dim)
+        Current positions (m).
+    fluid : ndarray of bool (n_owned,)
+        The owned fluid rows.
+    radius : float
+        Reach (m), the kernel support 2h.
+    """
+    x = np.asarray(x_owned, dtype=float)
+    if comm.size == 1 and not (box is not None and box.any_periodic):  # nothing to copy
+        return Halo._from_flat(comm, np.zeros(0, dtype=np.int64), np.zeros(1, dtype=np.int64),
+                               None, len(x))
+    fluid = np.asarray(fluid, dtype=bool)
+    dim = x.shape[1] if x.ndim == 2 else 0
+    x = np.ascontiguousarray(x.reshape(len(x), dim), dtype=np.float64)
+    shifts = np.ascontiguousarray(_box_images(box, dim), dtype=np.float64)
+    empty = (np.full(dim, np.inf), np.full(dim, -np.inf))
+    if radius < 0:
+        fbox = wbox = empty
+    else:
+        none = np.empty((0, dim))
+        lo, hi = _fluid_and_wet_bounds(x, fluid, shifts, none, none, 0.0)
+        fbox = (lo[0], hi[0])
+    fluid_boxes = [b for b in comm.allgather(fbox) if not np.any(b[0] > b[1])]
+    if radius >= 0 and fluid_boxes:
+        flo = np.array([b[0] for b in fluid_boxes], dtype=np.float64)
+        fhi = np.array([b[1] for b in fluid_boxes], dtype=np.float64)
+        lo, hi = _fluid_and_wet_bounds(x, fluid, shifts, flo, fhi, 2.0 * radius)
+        wbox = (lo[1], hi[1])
+    elif radius >= 0:
+        wbox = empty
+    boxes = comm.allgather((fbox, wbox))
+    periodic = box is not None and box.any_periodic
+    # every row near the fluid box or the wet box; the fluid rows within 2 radii of the
+    # wet box; to itself only the periodic images
+    boxes_of = [[f, w, (w[0], w[1], 2.0 * radius, True)] for f, w in boxes]
+    send, shift = _image_send_lists(comm, x, boxes_of, radius, shifts, False, fluid)
+    return Halo.from_send_lists(comm, send, shift if periodic else None, n_owned=len(x))
