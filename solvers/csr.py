@@ -9,7 +9,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["check_block", "count_diagonal", "row_block_counts", "sort_neighbours_by_row", "sparsify",
+__all__ = ["check_block", "count_diagonal", "prepare_block", "row_block_counts",
+           "sort_neighbours_by_row", "sparsify",
            "split_diagonal_block", "split_in_place", "unit_diagonal", "scale_rows"]
 
 
@@ -226,38 +227,161 @@ def split_in_place(indptr, cols, vals, first, stop, oi, oj, ov):
 
 
 @njit(cache=True, error_model="numpy")
-def sparsify(indptr, cols, vals, first, theta, out_ptr, out_cols, out_vals):
-    """A sparser copy of a CSR block (rows ``first, first + 1, ...``, global columns) for
-    a preconditioner: each row keeps its diagonal and the off-diagonal entries of at
-    least ``theta`` times its largest off-diagonal magnitude; the others are added to
-    its diagonal, so every row sum stays as it was (a Laplacian's constants stay its
-    null space). Writes ``out_*`` (room for the block); returns the entries written."""
-    n = indptr.shape[0] - 1
+def sparsify(di, dj, dv, oi, oj, ov, first, theta, out_ptr, out_cols, out_vals):
+    """A sparser copy of a CSR block (rows ``first, first + 1, ...``) for a
+    preconditioner, from its two parts as :func:`prepare_block` leaves them: the
+    diagonal part ``di, dj, dv`` (columns from ``first``: ``dj + first`` is global) and
+    the off-diagonal part ``oi, oj, ov`` (global columns; all of ``oi`` zero on one rank,
+    where the block is its diagonal part). Each row keeps its diagonal and the
+    off-diagonal entries of at least ``theta`` times its largest off-diagonal magnitude;
+    the others are added to its diagonal, so every row sum stays as it was (a
+    Laplacian's constants stay its null space). Writes whole rows in global column
+    order (the parts merged) to ``out_*`` (room for the block); returns the entries
+    written."""
+    n = di.shape[0] - 1
     out_ptr[0] = 0
     k = 0
     for r in range(n):
-        start, stop = indptr[r], indptr[r + 1]
         big = 0.0
-        for q in range(start, stop):
-            if cols[q] != first + r:
-                big = max(big, abs(vals[q]))
+        for q in range(di[r], di[r + 1]):
+            if dj[q] != r:
+                big = max(big, abs(dv[q]))
+        for q in range(oi[r], oi[r + 1]):
+            big = max(big, abs(ov[q]))
         cut = theta * big
         dropped = 0.0
         at = -1
-        for q in range(start, stop):
-            c = cols[q]
-            if c == first + r or abs(vals[q]) >= cut:
-                if c == first + r:
-                    at = k
-                out_cols[k] = c
-                out_vals[k] = vals[q]
+        u = oi[r]  # the off-diagonal entries below the diagonal part go first
+        while u < oi[r + 1] and oj[u] < first:
+            if abs(ov[u]) >= cut:
+                out_cols[k] = oj[u]
+                out_vals[k] = ov[u]
                 k += 1
             else:
-                dropped += vals[q]
+                dropped += ov[u]
+            u += 1
+        for q in range(di[r], di[r + 1]):
+            if dj[q] == r or abs(dv[q]) >= cut:
+                if dj[q] == r:
+                    at = k
+                out_cols[k] = dj[q] + first
+                out_vals[k] = dv[q]
+                k += 1
+            else:
+                dropped += dv[q]
+        while u < oi[r + 1]:
+            if abs(ov[u]) >= cut:
+                out_cols[k] = oj[u]
+                out_vals[k] = ov[u]
+                k += 1
+            else:
+                dropped += ov[u]
+            u += 1
         if at >= 0:
             out_vals[at] += dropped
         out_ptr[r + 1] = k
     return k
+
+
+@njit(cache=True, error_model="numpy")
+def prepare_block(indptr, cols, vals, first, stop, unit, oi, oj, ov):
+    """In one pass over a CSR block of a rank's rows (rows ``first, first + 1, ...``,
+    global columns sorted in each row): with ``unit``, each row scaled in place to a
+    unit diagonal (as :func:`unit_diagonal`); the checks of :func:`check_block`; and
+    with ``oi`` not empty (several ranks), the split into the diagonal part, written
+    over the block (columns renumbered from 0), and the off-diagonal part ``oi, oj,
+    ov`` (room: :func:`count_diagonal`), as :func:`split_in_place`.
+
+    Returns ``(scale, lo, hi, bad, p, q)``: the row scale (ones without ``unit``),
+    the smallest and largest column and the number of non-finite values (after the
+    scaling), and the diagonal and off-diagonal entry counts (``q = 0`` unsplit).
+
+    A row's columns being sorted, its diagonal entry and the ends of its diagonal part
+    are found by bisection and its smallest and largest columns are its ends; each
+    stretch is then moved by a plain loop, in place until the first off-diagonal entry,
+    and a flag of any value not finite stands for the count until one is. Four passes
+    (the scaling, the checks, the count and the split), with a test per entry, had
+    cost 7 ms per step of the PPE block of a 3D tank of 1e5 particles on the slower of
+    2 ranks."""
+    n = indptr.shape[0] - 1
+    scale = np.ones(n)
+    split = oi.shape[0] > 0
+    lo = cols[0] if cols.shape[0] else 0
+    hi = lo
+    p = 0
+    q = 0
+    start = indptr[0]
+    if split:
+        oi[0] = 0
+    for r in range(n):
+        end = indptr[r + 1]
+        s = 1.0
+        if unit:  # the diagonal by bisection of the sorted row
+            k = _first_at_least(cols, start, end, first + r)
+            if k < end and cols[k] == first + r and vals[k] > 0.0:
+                s = 1.0 / vals[k]
+                scale[r] = s
+        if end > start:
+            lo = min(lo, cols[start])
+            hi = max(hi, cols[end - 1])
+        if not split:
+            for k in range(start, end):
+                v = vals[k] * s
+                vals[k] = v
+        else:
+            a, b = start, end  # the diagonal part [a, b): mostly the whole row
+            if end > start and cols[start] < first:
+                a = _first_at_least(cols, start, end, first)
+            if end > a and cols[end - 1] >= stop:
+                b = _first_at_least(cols, a, end, stop)
+            for k in range(start, a):
+                v = vals[k] * s
+                oj[q] = cols[k]
+                ov[q] = v
+                q += 1
+            if p == a:  # nothing to move yet: in place
+                for k in range(a, b):
+                    v = vals[k] * s
+                    cols[k] -= first
+                    vals[k] = v
+            else:  # an entry only moves forward (p < a); views let the loop run plain
+                m = b - a
+                to_c, to_v, from_c, from_v = cols[p:p + m], vals[p:p + m], cols[a:b], vals[a:b]
+                for t in range(m):
+                    v = from_v[t] * s
+                    to_c[t] = from_c[t] - first
+                    to_v[t] = v
+            p += b - a
+            for k in range(b, end):
+                v = vals[k] * s
+                oj[q] = cols[k]
+                ov[q] = v
+                q += 1
+            indptr[r + 1] = p
+            oi[r + 1] = q
+        start = end
+    if not split:
+        p = indptr[n]
+    bad = 0  # a pass of its own: a flag per entry kept the loops above from running plain
+    for k in range(p):
+        bad += not np.isfinite(vals[k])
+    for k in range(q):
+        bad += not np.isfinite(ov[k])
+    return scale, lo, hi, bad, p, q
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _first_at_least(cols, start, end, c):
+    """The first ``k`` in ``[start, end)`` with ``cols[k] >= c`` (``end`` if none) of an
+    ascending stretch ``cols[start:end]``."""
+    lo, hi = start, end
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if cols[mid] < c:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
 
 
 @njit(cache=True, error_model="numpy")
@@ -271,18 +395,9 @@ def unit_diagonal(indptr, cols, vals, first):
     changes by orders from one matrix to the next (a wall row in barely any contact
     with the fluid) from spoiling a preconditioner set up on the last matrix."""
     n = indptr.shape[0] - 1
-    scale = np.ones(n)
-    for r in range(n):
-        d = 0.0
-        for k in range(indptr[r], indptr[r + 1]):
-            if cols[k] == first + r:
-                d = vals[k]
-        if d > 0.0:
-            s = 1.0 / d
-            scale[r] = s
-            for k in range(indptr[r], indptr[r + 1]):
-                vals[k] *= s
-    return scale
+    none = np.empty(0, dtype=indptr.dtype)
+    return prepare_block(indptr, cols, vals, first, first + n, True, none,
+                         np.empty(0, dtype=cols.dtype), np.empty(0))[0]
 
 
 @njit(cache=True, error_model="numpy")

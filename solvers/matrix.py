@@ -22,8 +22,8 @@ from __future__ import annotations
 import numpy as np
 
 from parsph.core import heap
-from solvers.csr import (check_block, count_diagonal, row_block_counts, sparsify,
-                         split_diagonal_block, split_in_place)
+from solvers.csr import (check_block, count_diagonal, prepare_block, row_block_counts,
+                         sparsify, split_diagonal_block, split_in_place)
 from solvers.errors import SolverError, agree
 from solvers.petsc_env import hypre_preallocation as _hypre_preallocation
 
@@ -203,14 +203,16 @@ class MatrixAssembly:
         self._drop_product()
         self._ksp.setOperators(self._mat)
 
-    def _check_csr(self, indptr, cols, values):
-        """``(exception type, message)`` for a bad CSR block of the owned rows, else None."""
+    def _check_csr(self, indptr, cols, values, stats=None):
+        """``(exception type, message)`` for a bad CSR block of the owned rows, else None.
+        ``stats``: a callable returning :func:`solvers.csr.check_block`'s figures of the
+        block, called once its shape is known to be right (default: that function)."""
         if indptr.shape != (self.n_local + 1,) or cols.shape != values.shape or cols.ndim != 1 \
                 or indptr[0] != 0 or indptr[-1] != cols.size:
             return ValueError, (
                 f"{self.prefix}: need indptr of {self.n_local + 1} entries from 0 to len(cols) and "
                 f"cols, values of one length; got {indptr.shape}, {cols.shape}, {values.shape}")
-        lo, hi, bad = check_block(cols, values)
+        lo, hi, bad = stats() if stats is not None else check_block(cols, values)
         if cols.size and (lo < 0 or hi >= self.n_global):
             return ValueError, (
                 f"{self.prefix}: columns in {int(lo)}..{int(hi)}, outside the global range "
@@ -267,21 +269,26 @@ class MatrixAssembly:
         self._pc_age = 0
 
     def assemble_csr_over(self, indptr, cols, values, same_unknowns: bool = False,
-                          drop: float = 0.0) -> None:
+                          drop: float = 0.0, unit_diagonal: bool = False):
         """Collective: :meth:`assemble_csr` with the matrix built over the caller's arrays.
 
         PETSc takes the arrays as the matrix's storage (on several ranks after a split in
-        place into the diagonal block, :func:`solvers.csr.split_in_place`: **they are
-        overwritten**), so the system keeps no copy of its own. The caller must leave
-        them untouched until the solves on this matrix are done, and assemble again
-        before the next solve once it has written to them; the system keeps them alive
-        meanwhile. Every call builds a new matrix (no pattern is kept to compare with).
-        A lagged preconditioner set-up (``reuse_preconditioner``, ``same_unknowns``)
-        holds hypre's copy of an earlier matrix and reads none of these arrays.
+        place into the diagonal block: **they are overwritten**), so the system keeps no
+        copy of its own. The caller must leave them untouched until the solves on this
+        matrix are done, and assemble again before the next solve once it has written to
+        them; the system keeps them alive meanwhile. Every call builds a new matrix (no
+        pattern is kept to compare with). A lagged preconditioner set-up
+        (``reuse_preconditioner``, ``same_unknowns``) holds hypre's copy of an earlier
+        matrix and reads none of these arrays.
 
         The PPE's CSR block and the viscous preconditioner's share one caller buffer
         this way (``parsph/fluid/stage.py``): a copy per system had cost 12 bytes per
         entry on one rank and 28 on several (docs/solvers.md).
+
+        ``unit_diagonal``: each row is first scaled in place to a unit diagonal
+        (:func:`solvers.csr.unit_diagonal`) and the row scale returned (else None). The
+        scaling, the checks and the split are one pass over the block
+        (:func:`solvers.csr.prepare_block`).
 
         ``drop`` > 0: a fresh BoomerAMG set-up is made on a sparser copy of the block
         (:func:`solvers.csr.sparsify`: each row keeps the entries of at least ``drop``
@@ -296,8 +303,26 @@ class MatrixAssembly:
         ValueError, SolverError
             On every rank, as :meth:`assemble_csr`.
         """
-        arrays = self._csr_arrays(indptr, cols, values)
-        bits = agree(self.comm, self._check_csr(*arrays), 0 if same_unknowns else 2)
+        indptr, cols, values = self._csr_arrays(indptr, cols, values)
+        first, stop = self.owned_range
+        int_type = indptr.dtype
+        if self.comm.size > 1 and indptr.shape == (self.n_local + 1,) and cols.ndim == 1:
+            n_off = cols.size - count_diagonal(cols, first, stop)
+            off = (np.empty_like(indptr), np.empty(n_off, dtype=int_type), np.empty(n_off))
+        else:  # the block is its diagonal part
+            off = (np.empty(0, dtype=int_type), np.empty(0, dtype=int_type), np.empty(0))
+        done = []
+
+        def prepare():
+            done.append(prepare_block(indptr, cols, values, first, stop, unit_diagonal, *off))
+            return done[0][1:4]
+
+        bits = agree(self.comm, self._check_csr(indptr, cols, values, prepare),
+                     0 if same_unknowns else 2)
+        scale, _, _, _, p, q = done[0]
+        if not off[0].size:
+            off = (np.zeros_like(indptr), off[1], off[2])
+        diag, off = (indptr, cols[:p], values[:p]), (off[0], off[1][:q], off[2][:q])
         self._lag(not bits & 2)
         sparse = None
         if self._pc_age == 0 and self._mat is not None:  # the last set-up goes first
@@ -305,22 +330,24 @@ class MatrixAssembly:
         if self._pmat is not None:  # a lagged set-up holds its own reference
             self._pmat.destroy()
             self._pmat = None
-        if drop > 0.0 and self._pc_age == 0:  # before the split in place below
+        if drop > 0.0 and self._pc_age == 0:
             # the copy and hypre's matrix made of it are the PPE's largest allocations
             heap.release_free_pages(self.n_local_rows)
-            ptr, c, _ = arrays
-            sparse = (np.empty_like(ptr), np.empty_like(c), np.empty(c.size))
-            k = sparsify(*arrays, self.offset, drop, *sparse)
+            sparse = (np.empty_like(indptr), np.empty(p + q, dtype=int_type), np.empty(p + q))
+            k = sparsify(*diag, *off, first, drop, *sparse)
             sparse = (sparse[0], sparse[1][:k], sparse[2][:k])
-        self._finish_build(self._aij_over(*arrays))
+        sizes = ((self.n_local, self.n_global), (self.n_local, self.n_global))
+        self._finish_build(self._PETSc.Mat().createAIJWithArrays(
+            sizes, (diag, off) if self.comm.size > 1 else diag, comm=self.comm))
         if sparse is not None:
             self._pmat = self._hypre_over(*sparse)
             del sparse
             heap.release_free_pages(self.n_local_rows)  # the copy and hypre's row arrays
-        self._held = arrays
+        self._held = diag + off
         self._pattern = None
         self._drop_product()
         self._ksp.setOperators(self._mat, self._amg_matrix())
+        return scale if unit_diagonal else None
 
     def _amg_matrix(self):
         """The matrix a fresh preconditioner set-up is made on: the sparser copy of

@@ -537,27 +537,76 @@ def test_assemble_csr_over_solves_from_one_reused_buffer(comm):
         assert system.n_setups == 2 and system.n_builds == 5
 
 
-def test_sparsify_keeps_large_entries_and_row_sums():
-    """sparsify: each row keeps its diagonal and the entries of at least theta times its
-    largest off-diagonal magnitude; the row sums are those of the block."""
-    from solvers.csr import sparsify
+@pytest.mark.parametrize("split", [False, True])
+def test_sparsify_keeps_large_entries_and_row_sums(split):
+    """sparsify, from the block whole (one rank) or split into its diagonal and
+    off-diagonal parts (several): each row keeps its diagonal and the entries of at
+    least theta times its largest off-diagonal magnitude, in global column order; the
+    row sums are those of the block."""
+    from solvers.csr import count_diagonal, prepare_block, sparsify
 
     n, first, stop = 12, 40, 100
     indptr, cols, vals, block = _poisson_csr(n, first, stop, shift=0.3)
     rng = np.random.default_rng(3)
     vals = vals * np.where(cols == np.repeat(np.arange(first, stop), np.diff(indptr)), 1.0,
                            rng.uniform(0.05, 1.0, vals.size))
-    out = np.zeros_like(indptr), np.zeros_like(cols), np.zeros(vals.size)
-    k = sparsify(indptr, cols, vals, first, 0.5, *out)
-    assert 0 < k < cols.size
     full = sp.csr_matrix((vals, cols, indptr), shape=(stop - first, n * n))
-    thin = sp.csr_matrix((out[2][:k], out[1][:k], out[0]), shape=(stop - first, n * n))
+    ip, c, v = indptr.copy(), cols.copy(), vals.copy()
+    if split:
+        n_off = c.size - count_diagonal(c, first, stop)
+        off = np.zeros_like(ip), np.zeros(n_off, c.dtype), np.zeros(n_off)
+        *_, p, q = prepare_block(ip, c, v, first, stop, False, *off)
+        assert q == n_off > 0
+        parts = (ip, c[:p], v[:p], *off, first)
+    else:  # one rank: the block is its diagonal part, its columns from first = 0
+        ip = np.concatenate([[0] * first, ip])
+        parts = (ip, c, v, np.zeros_like(ip), c[:0], v[:0], 0)
+    out = np.zeros_like(ip), np.zeros_like(cols), np.zeros(vals.size)
+    k = sparsify(*parts, 0.5, *out)
+    assert 0 < k < cols.size
+    thin = sp.csr_matrix((out[2][:k], out[1][:k], out[0][-(stop - first + 1):]),
+                         shape=(stop - first, n * n))
+    assert thin.has_sorted_indices
     np.testing.assert_allclose(thin.sum(axis=1), full.sum(axis=1), rtol=1e-13, atol=1e-13)
     for r in range(stop - first):
         row, kept = full.getrow(r).toarray()[0], thin.getrow(r).toarray()[0]
         off = np.arange(n * n) != first + r
         big = np.abs(row[off]).max()
         assert np.array_equal(kept[off], np.where(np.abs(row[off]) >= 0.5 * big, row[off], 0.0))
+
+
+def test_prepare_block_is_the_scaling_checks_and_split_of_a_copy():
+    """prepare_block in one pass: the row scale and values of unit_diagonal, the figures
+    of check_block (a NaN counted), the parts of split_in_place; unsplit, the block
+    scaled in place."""
+    from solvers.csr import (check_block, count_diagonal, prepare_block, split_in_place,
+                             unit_diagonal)
+
+    n, first, stop = 12, 40, 100
+    indptr, cols, vals, _ = _poisson_csr(n, first, stop, shift=0.2, extra=True)
+    indptr, cols = indptr.astype(np.int32), cols.astype(np.int32)
+    vals = vals * np.random.default_rng(5).uniform(0.5, 2.0, vals.size)
+    vals[7] = np.nan
+    ref = [indptr.copy(), cols.copy(), vals.copy()]
+    ref_scale = unit_diagonal(*ref, first)
+    lo, hi, bad = check_block(ref[1], ref[2])
+    q_ref = cols.size - count_diagonal(cols, first, stop)
+    oi, oj, ov = np.zeros_like(indptr), np.zeros(q_ref, np.int32), np.zeros(q_ref)
+    p_ref, _ = split_in_place(*ref, first, stop, oi, oj, ov)
+    for split in (True, False):
+        ip, c, v = indptr.copy(), cols.copy(), vals.copy()
+        off = (np.zeros_like(ip), np.zeros(q_ref, np.int32), np.zeros(q_ref)) if split \
+            else (ip[:0], c[:0], v[:0])
+        scale, *figures, p, q = prepare_block(ip, c, v, first, stop, True, *off)
+        assert np.array_equal(scale, ref_scale) and figures == [lo, hi, bad] == [
+            cols.min(), cols.max(), 1]
+        if split:
+            assert (p, q) == (p_ref, q_ref)
+            for got, want in zip((ip, c[:p], v[:p], *off), (*ref, oi, oj, ov)):
+                np.testing.assert_array_equal(got, want[:len(got)])
+        else:
+            assert (p, q) == (cols.size, 0)
+            np.testing.assert_array_equal(v, vals * np.repeat(ref_scale, np.diff(indptr)))
 
 
 def test_preconditioner_on_a_sparser_copy_solves_the_whole_matrix(comm):

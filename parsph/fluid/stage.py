@@ -39,7 +39,7 @@ from parsph.fluid.ppe import ppe_csr
 from parsph.core.contact import wall_contact
 from parsph.fluid.walls import system_rows, wall_slip
 from parsph.scene.materials import PHASE_FLUID, PHASE_WALL
-from solvers.csr import scale_rows, sort_neighbours_by_row, unit_diagonal
+from solvers.csr import scale_rows, sort_neighbours_by_row
 
 #: Fields of a step alone (name, vector): the systems' row numbers, v*, and (coupled) the
 #: solids' inverse true mass and self-response (:mod:`parsph.fluid.response`); all but
@@ -465,10 +465,9 @@ class IISPH:
         # every row scaled to a unit diagonal: a boundary row barely in contact has a
         # diagonal of 1e-9 one step and 1e-7 the next, and a lagged set-up then took 60
         # iterations where a fresh one took 9 (with the scaling: 11; docs/solvers.md)
-        scale = unit_diagonal(ptr, cols[:nnz], vals[:nnz], ppe.offset)
         # over the shared buffer, no copy: the viscous system rewrites it after this solve
-        ppe.assemble_csr_over(ptr, cols[:nnz], vals[:nnz], self._same_ppe_rows(
-            p["id"][:n][order]), self.num.ppe_preconditioner_drop)
+        scale = ppe.assemble_csr_over(ptr, cols[:nnz], vals[:nnz], self._same_ppe_rows(
+            p["id"][:n][order]), self.num.ppe_preconditioner_drop, unit_diagonal=True)
         if coupled:
             scale_rows(near[0], near[2][:n_near], scale)
             ppe.set_product(*blocks, near=(near[0], near[1][:n_near], near[2][:n_near]),
