@@ -29,6 +29,9 @@ class Context:
     radius: float
     rcb: RCB = None
     rcb_ref: RCB = None
+    #: The ``rcb_ref`` whose owners the solids were last sent to (mixed layout): under
+    #: the same cuts they are all home (their X is fixed), so none is looked up again.
+    solids_placed: RCB = None
     #: mixed layout: the walls' partition (``rcb`` is then the fluid's)
     rcb_wall: RCB = None
     #: set when the solids' partition (by X) was rebuilt: their view must be rebuilt too
