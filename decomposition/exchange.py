@@ -55,7 +55,7 @@ def check_field(name: str, a: np.ndarray, where: str) -> None:
                         f"objects; convert it to a numeric or fixed-size string dtype")
 
 
-def migrate(comm, fields: dict, dest) -> dict:
+def migrate(comm, fields: dict, dest, last=None) -> dict:
     """Collective: send row ``i`` of every field to rank ``dest[i]``.
 
     Parameters
@@ -69,14 +69,20 @@ def migrate(comm, fields: dict, dest) -> dict:
         zero-length arrays of the right dtype and shape).
     dest : array_like of int, shape (N,)
         Destination rank of each row, in ``[0, comm.size)``.
+    last : array_like of bool, shape (N,), optional
+        Rows that go after all the others on their new rank (the flag travels with the
+        row; on every rank alike, or nowhere). A caller that numbers some rows after
+        the others (the walls of the fluid's systems) keeps its numbering in storage
+        order this way, which arrivals appended after those rows would break.
 
     Returns
     -------
     dict of str to ndarray
-        The rows this rank owns afterwards, ordered by source rank, then by the original
-        local order on the source. On one rank, and on every rank when no row changes
-        rank, the input arrays are returned unchanged (not copied); otherwise only the
-        rows that leave are communicated.
+        The rows this rank owns afterwards: those without ``last`` first, then those
+        with it, each group ordered by source rank, then by the original local order on
+        the source. On one rank, and on every rank when no row changes rank, the input
+        arrays are returned unchanged (not copied); otherwise only the rows that leave
+        are communicated.
 
     Raises
     ------
@@ -96,6 +102,8 @@ def migrate(comm, fields: dict, dest) -> dict:
             problem = (f"field '{name}' has {a.shape[0]} rows but dest has {n}; pass one "
                        f"destination per row")
             break
+    if not problem and last is not None and np.shape(last) != (n,):
+        problem = f"last has shape {np.shape(last)} but dest has {n} rows; pass one flag per row"
     if not problem and n and (dest.dtype.kind not in "iu" or dest.min() < 0 or dest.max() >= size):
         problem = (f"dest must hold integer ranks in [0, {size}), got dtype {dest.dtype} and "
                    f"range [{dest.min()}, {dest.max()}]; compute it with RCB.owner")
@@ -108,15 +116,17 @@ def migrate(comm, fields: dict, dest) -> dict:
     dest = dest.astype(np.int64, copy=False)
     stay = dest == comm.rank
     n_move = 0 if problem else n - int(stay.sum())
-    agree = np.array([sig, -sig, 1 if problem else 0, n_move], dtype=np.int64)
+    flagged = int(last is not None)
+    agree = np.array([sig, -sig, 1 if problem else 0, n_move, flagged, -flagged],
+                     dtype=np.int64)
     comm.Allreduce(MPI.IN_PLACE, agree, op=MPI.MAX)
     if agree[2]:
         # Every rank is here: agree on the first failing rank's message.
         raise_if_any(comm, ValueError(f"migrate: {problem}") if problem else None)
-    if agree[0] != -agree[1]:
+    if agree[0] != -agree[1] or agree[4] != -agree[5]:
         raise ValueError("migrate: ranks passed different field names, dtypes or trailing "
-                         "shapes; pass the same set on every rank (zero-length arrays on "
-                         "an empty rank)")
+                         "shapes, or last on some ranks only; pass the same set on every "
+                         "rank (zero-length arrays on an empty rank)")
 
     if agree[3] == 0:  # no row changes rank anywhere: nothing to copy
         return dict(fields)
@@ -132,6 +142,19 @@ def migrate(comm, fields: dict, dest) -> dict:
     np.cumsum(recv_counts[:-1], out=recv_displ[1:])
     n_recv = int(recv_counts.sum())
 
+    send_last = None
+    if last is not None:  # where each row goes: its group, then source rank, local order
+        last = np.asarray(last, dtype=np.uint8).reshape(-1)
+        send_last = np.ascontiguousarray(last[order])
+        recv_last = np.empty(n_recv, dtype=np.uint8)
+        comm.Alltoallv([send_last, (send_counts, send_displ), MPI.UINT8_T],
+                       [recv_last, (recv_counts, recv_displ), MPI.UINT8_T])
+        before = int(recv_displ[comm.rank])
+        flags = np.concatenate([recv_last[:before], last[stay], recv_last[before:]])
+        at = np.empty(len(flags), dtype=np.int64)  # new place of each row, that order
+        at[np.argsort(flags, kind="stable")] = np.arange(len(flags))
+        at_stay = at[before:before + len(flags) - n_recv]
+        at_recv = np.concatenate([at[:before], at[before + len(at_stay):]])
     out = {}
     for name in sorted(fields):
         a = np.asarray(fields[name])
@@ -146,6 +169,11 @@ def migrate(comm, fields: dict, dest) -> dict:
             finally:
                 rowtype.Free()
         before = int(recv_displ[comm.rank])  # rows from lower ranks (none from this one)
-        out[name] = np.concatenate([recv[:before], a[stay], recv[before:]])
+        if send_last is None:
+            out[name] = np.concatenate([recv[:before], a[stay], recv[before:]])
+        else:
+            out[name] = np.empty((len(at),) + a.shape[1:], dtype=a.dtype)
+            out[name][at_stay] = a[stay]
+            out[name][at_recv] = recv
     # Keep the caller's key order.
     return {name: out[name] for name in fields}

@@ -59,10 +59,37 @@ def _ascending_runs(row):
     return run, r + 1
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _rotated(out, start, stop, row, run, scratch):
+    """Sort ``out[start:stop]`` (in index order, its first and last entries in different
+    stretches of ``run``) by a rotation if it is two stretches whose second lies wholly
+    below the first (a rank's own neighbours, then its halo ones from a lower rank);
+    returns whether it did."""
+    m = start + 1
+    while run[out[m]] == run[out[start]]:
+        m += 1
+    if run[out[m]] != run[out[stop - 1]]:
+        return False
+    top, bottom = row[out[start]], row[out[stop - 1]]
+    if top < 0 or bottom < 0 or bottom >= top:
+        return False
+    k = 0
+    for p in range(m, stop):
+        scratch[k] = out[p]
+        k += 1
+    for p in range(start, m):
+        scratch[k] = out[p]
+        k += 1
+    for p in range(k):
+        out[start + p] = scratch[p]
+    return True
+
+
 @njit(cache=True, error_model="numpy")
 def _sort_by_row(indptr, out, row, run):
     """Stable sort of each list of ``out`` by ``row``, except the lists whose first
-    and last entries have one ``run`` (:func:`_ascending_runs`; empty: none skipped): a natural merge sort, one pass
+    and last entries have one ``run`` (:func:`_ascending_runs`; empty: none skipped),
+    and by a rotation the lists of two runs the second of which lies below the first: a natural merge sort, one pass
     per doubling of its ascending runs, with a scratch of the longest list (in L1).
 
     A list is mostly in order, but not always in few moves: on the rank whose halo rows
@@ -82,6 +109,8 @@ def _sort_by_row(indptr, out, row, run):
         start, stop = indptr[i], indptr[i + 1]
         length = stop - start
         if length == 0 or (run.shape[0] and run[out[start]] == run[out[stop - 1]]):
+            continue
+        if run.shape[0] and _rotated(out, start, stop, row, run, va):
             continue
         ordered = True
         for p in range(start + 1, stop):

@@ -274,6 +274,36 @@ def test_migrate_conserves_rows_and_lands_on_owner(comm):
     assert np.all(np.diff(key) > 0)  # by source rank, then original local order
 
 
+def test_migrate_puts_the_rows_flagged_last_after_the_others(comm):
+    """migrate(..., last=): the same rows on the same owners as without it, the
+    flagged rows after the others, each group by source rank, then local order; a
+    flag on some ranks only is refused on every rank. One rank: nothing moves, and the
+    rows stay as they are."""
+    n, dim = 401, 2
+    X = np.random.default_rng(12).random((n, dim))
+    box = Box((0.0,) * dim, (1.0,) * dim, (False,) * dim)
+    loc = _split(comm, n, "shuffled", seed=5)
+    rcb = RCB.build(comm, X[loc], box)
+    fields = {"x": X[loc], "id": loc.astype(np.int64),
+              "src": np.full(len(loc), comm.rank, dtype=np.int32),
+              "local": np.arange(len(loc), dtype=np.int64)}
+    wall = loc % 4 == 1
+    plain = migrate(comm, fields, rcb.owner(X[loc]))
+    out = migrate(comm, fields, rcb.owner(X[loc]), last=wall)
+    np.testing.assert_array_equal(np.sort(out["id"]), np.sort(plain["id"]))
+    if comm.size == 1:
+        assert out["id"] is fields["id"]
+        return
+    flagged = out["id"] % 4 == 1
+    assert not np.any(flagged[:-1] & ~flagged[1:])  # no unflagged row after a flagged one
+    for group in (~flagged, flagged):
+        key = out["src"][group].astype(np.int64) * n + out["local"][group]
+        assert np.all(np.diff(key) > 0)
+    np.testing.assert_array_equal(out["x"], X[out["id"]])
+    with pytest.raises(ValueError, match="last on some ranks"):
+        migrate(comm, fields, rcb.owner(X[loc]), last=wall if comm.rank else None)
+
+
 def test_migrate_rejects_bad_dest(comm):
     x = np.zeros((2, 2))
     dest = np.array([0, comm.size]) if comm.rank == 0 else np.zeros(2, dtype=np.int64)

@@ -153,7 +153,10 @@ def _distribute(ctx, force: bool = False) -> None:
         else:
             dest[wall] = _wall_owner(ctx, x[wall], np.asarray(lo), np.asarray(hi))
         dest[fluid] = to
-        p.set_owned(migrate(comm, owned, dest))
+        # the walls after the rest, as the fluid's systems number them: each rank's rows
+        # in the systems then ascend with the index, and so do its neighbours' in the
+        # halo, and a list is sorted by row as built (solvers.csr.sort_neighbours_by_row)
+        p.set_owned(migrate(comm, owned, dest, last=wall))
         return
     work = _work(owned["phase"])
     rebuilt = force or ctx.rcb is None or imbalance(comm, float(work.sum())) > tolerance
@@ -162,7 +165,8 @@ def _distribute(ctx, force: bool = False) -> None:
     dest = ctx.rcb.owner(owned[key])
     if not rebuilt and _lazy(ctx):
         _keep_strays(ctx, owned[key], dest)
-    p.set_owned(migrate(comm, owned, dest))
+    # the walls after the rest, as the fluid's systems number them (parsph.fluid.stage)
+    p.set_owned(migrate(comm, owned, dest, last=owned["phase"] == PHASE_WALL))
 
 
 def _alone(ctx) -> bool:
