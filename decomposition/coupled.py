@@ -5,25 +5,40 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from decomposition.halo import Halo, _box_images, _image_send_lists
+from decomposition.halo import Halo, _box_images, _image_send_lists, _union
 
 __all__ = ["coupled_halo"]
 
 
 @njit(cache=True, error_model="numpy")
-def _fluid_and_wet_bounds(x, fluid, shifts, flo, fhi, reach):
-    """Bounds ``(lo, hi)``, each (2, dim), of the fluid rows of ``x`` and of its other
-    rows that lie (an image ``x + shifts[k]`` of them) within ``reach`` of any of the
-    boxes ``[flo[b], fhi[b]]`` (``inf``, ``-inf`` where none); ``flo`` and ``fhi`` empty
-    (no boxes): the fluid rows' bounds only."""
+def _wet_bounds(x, fluid, shifts, flo, fhi, reach):
+    """Per-axis bounds ``(lo, hi)`` of the rows of ``x`` that are fluid (no boxes:
+    ``flo`` empty), or else of its other rows that lie (an image ``x + shifts[k]`` of
+    them) within ``reach`` of any of the boxes ``[flo[b], fhi[b]]`` (``inf``, ``-inf``
+    where none)."""
     n, dim = x.shape
-    lo = np.full((2, dim), np.inf)
-    hi = np.full((2, dim), -np.inf)
+    lo = np.full(dim, np.inf)
+    hi = np.full(dim, -np.inf)
+    wet = flo.shape[0] > 0
+    widen = np.full(flo.shape[0], reach)
+    unions = [_union(flo, fhi, widen, shifts[s]) for s in range(shifts.shape[0])]
     for i in range(n):
-        k = 0
-        if not fluid[i]:
+        if not wet:
+            if not fluid[i]:
+                continue
+        else:
+            if fluid[i]:
+                continue
             k = -1
             for s in range(shifts.shape[0]):
+                ulo, uhi = unions[s]
+                far = False
+                for a in range(dim):  # the union of the widened boxes first
+                    if not (x[i, a] >= ulo[a] and x[i, a] <= uhi[a]):
+                        far = True
+                        break
+                if far:
+                    continue
                 for b in range(flo.shape[0]):
                     inside = True
                     for a in range(dim):
@@ -39,8 +54,8 @@ def _fluid_and_wet_bounds(x, fluid, shifts, flo, fhi, reach):
             if k < 0:
                 continue
         for a in range(dim):
-            lo[k, a] = min(lo[k, a], x[i, a])
-            hi[k, a] = max(hi[k, a], x[i, a])
+            lo[a] = min(lo[a], x[i, a])
+            hi[a] = max(hi[a], x[i, a])
     return lo, hi
 
 
@@ -88,14 +103,12 @@ def coupled_halo(comm, x_owned, fluid, radius: float, box=None) -> Halo:
         fbox = wbox = empty
     else:
         none = np.empty((0, dim))
-        lo, hi = _fluid_and_wet_bounds(x, fluid, shifts, none, none, 0.0)
-        fbox = (lo[0], hi[0])
+        fbox = _wet_bounds(x, fluid, shifts, none, none, 0.0)
     fluid_boxes = [b for b in comm.allgather(fbox) if not np.any(b[0] > b[1])]
     if radius >= 0 and fluid_boxes:
         flo = np.array([b[0] for b in fluid_boxes], dtype=np.float64)
         fhi = np.array([b[1] for b in fluid_boxes], dtype=np.float64)
-        lo, hi = _fluid_and_wet_bounds(x, fluid, shifts, flo, fhi, 2.0 * radius)
-        wbox = (lo[1], hi[1])
+        wbox = _wet_bounds(x, fluid, shifts, flo, fhi, 2.0 * radius)
     elif radius >= 0:
         wbox = empty
     boxes = comm.allgather((fbox, wbox))

@@ -427,13 +427,39 @@ def _box_images(box, dim):
 
 
 @njit(cache=True, error_model="numpy")
+def _union(lo, hi, reach, shift):
+    """Per-axis bounds of the union of the boxes ``[lo[b] - reach[b], hi[b] + reach[b]]``
+    less ``shift`` (a point ``x`` with ``x + shift`` in a box lies in them)."""
+    dim = lo.shape[1]
+    ulo = np.full(dim, np.inf)
+    uhi = np.full(dim, -np.inf)
+    for b in range(lo.shape[0]):
+        for a in range(dim):
+            if lo[b, a] <= hi[b, a]:
+                ulo[a] = min(ulo[a], lo[b, a] - reach[b] - shift[a])
+                uhi[a] = max(uhi[a], hi[b, a] + reach[b] - shift[a])
+    return ulo, uhi
+
+
+@njit(cache=True, error_model="numpy")
 def _near_boxes(x, shift, lo, hi, reach, only, flag):
     """Rows whose image ``x + shift`` lies within ``reach[b]`` of any box ``[lo[b],
     hi[b]]`` (one pass over the rows; an empty box, lo > hi on an axis, is near
     nothing); a box with ``only[b]`` is near the rows with ``flag`` set only."""
     n, dim = x.shape
     near = np.zeros(n, dtype=np.bool_)
+    # the union of the widened boxes first: most rows are far from all of them (0.56
+    # and 0.69 -> 0.16 and 0.24 ms per step of the 3D tank of jobs/bench_memory.py on
+    # its 2 ranks)
+    ulo, uhi = _union(lo, hi, reach, shift)
     for i in range(n):
+        far = False
+        for a in range(dim):
+            if not (x[i, a] >= ulo[a] and x[i, a] <= uhi[a]):
+                far = True
+                break
+        if far:
+            continue
         for b in range(lo.shape[0]):
             if only[b] and not flag[i]:
                 continue
