@@ -14,14 +14,16 @@ __all__ = ["check_block", "count_diagonal", "prepare_block", "row_block_counts",
            "split_diagonal_block", "split_in_place", "unit_diagonal", "scale_rows"]
 
 
-def sort_neighbours_by_row(indptr, indices, row, inplace=False, ascending=False):
+def sort_neighbours_by_row(indptr, indices, row, inplace=False, ascending=False,
+                           order=None):
     """The CSR neighbour lists ``indices`` with each list sorted by the global row
     ``row[j]`` of the neighbours: kernels that emit a row's entries in neighbour order
     then produce sorted CSR rows (a repeated row, a periodic image, is adjacent). A copy,
     or ``indices`` itself sorted with ``inplace`` (a list of the step's pairs less).
 
-    ``ascending``: the caller's lists are in ascending index order (``build_csr``'s).
-    The particles then split, by index, into the stretches over which the rows in the
+    ``ascending``: the caller's lists are in ascending index order (``build_csr``'s),
+    or in the order ``order`` of the particles (``build_csr``'s ``visit``; the stretches
+    below are then taken along it). The particles then split, by index, into the stretches over which the rows in the
     systems (``row >= 0``) strictly ascend (:func:`_ascending_runs`); a list whose first
     and last entries lie in one stretch has its entries of rows ``>= 0`` in row order
     already and is left as it is (its entries outside the systems, which the kernels
@@ -33,7 +35,8 @@ def sort_neighbours_by_row(indptr, indices, row, inplace=False, ascending=False)
     and 3.0 and 3.8 ms on the two ranks of the 3D tank of ``jobs/bench_memory.py``."""
     out = indices if inplace else indices.copy()
     if ascending:
-        run, n_runs = _ascending_runs(row)
+        run, n_runs = _ascending_runs(row, np.zeros(0, dtype=np.int64) if order is None
+                                      else np.asarray(order, dtype=np.int64))
         if n_runs > 1:
             _sort_by_row(indptr, out, row, run)
     else:
@@ -42,14 +45,16 @@ def sort_neighbours_by_row(indptr, indices, row, inplace=False, ascending=False)
 
 
 @njit(cache=True, error_model="numpy")
-def _ascending_runs(row):
+def _ascending_runs(row, order):
     """``(run, n)``: ``run[k]`` numbers the stretch of indices that ``k`` lies in, over
     each of which the entries ``row >= 0`` strictly ascend (a new stretch begins at
-    each entry ``row >= 0`` not above the last one); ``n`` stretches in all."""
+    each entry ``row >= 0`` not above the last one); ``n`` stretches in all. The
+    indices are taken in the order ``order`` if it is not empty."""
     run = np.empty(row.shape[0], dtype=np.int32)
     last = -1
     r = 0
-    for k in range(row.shape[0]):
+    for t in range(row.shape[0]):
+        k = order[t] if order.shape[0] else t
         v = row[k]
         if v >= 0:
             if v <= last:

@@ -339,8 +339,8 @@ def test_dry_walls_beyond_the_fluids_reach_leave_the_systems(comm, mpi_tmp_path,
         rows.append((int(act.sum()), int(is_wall.sum())))
         return act
 
-    def every_wall(x, n_query, radius, active=None, near=None):
-        out = real_csr(x, n_query, radius, active, near)
+    def every_wall(x, n_query, radius, active=None, near=None, visit=None):
+        out = real_csr(x, n_query, radius, active, near, visit)
         if near is not None:
             near[:] = 1
         return out

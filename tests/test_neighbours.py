@@ -219,6 +219,33 @@ def test_gather_fill_gives_the_same_lists(monkeypatch):
     assert np.array_equal(ref[0], got[0]) and np.array_equal(ref[1], got[1])
 
 
+@pytest.mark.parametrize("gather", [False, True])
+def test_lists_come_in_the_visiting_order(monkeypatch, gather):
+    """build_csr(..., visit=): each list holds the same rows as without it, in the
+    order of the permutation (the rows as the fluid's systems number them: a halo from
+    a lower rank first), by both fills; a visit of the wrong length is refused."""
+    import parsph.core.neighbours as nb
+
+    rng = np.random.default_rng(17)
+    x = rng.uniform(0.0, 1.0, (1500, 3))
+    n_query = 1100
+    visit = np.concatenate([np.arange(n_query, 1500), rng.permutation(n_query)])
+    place = np.empty(1500, dtype=np.int64)
+    place[visit] = np.arange(1500)
+    ref = build_csr(x, n_query, 0.12)
+    if gather:
+        monkeypatch.setattr(nb, "_GATHER_MIN_PAIRS", 0)
+        monkeypatch.setattr(nb, "_GATHER_DISORDER", -1.0)
+    got = build_csr(x, n_query, 0.12, visit=visit)
+    assert np.array_equal(ref[0], got[0])
+    for i in range(n_query):
+        mine = got[1][got[0][i]:got[0][i + 1]]
+        assert np.array_equal(np.sort(mine), ref[1][ref[0][i]:ref[0][i + 1]])
+        assert np.all(np.diff(place[mine]) > 0), i
+    with pytest.raises(ValueError, match="visit"):
+        build_csr(x, n_query, 0.12, visit=visit[:-1])
+
+
 def brute_force_active(x, n_query, radius, active):
     """Reference lists with ``active``: an inactive row keeps its row only if an active
     row is among its neighbours (empty otherwise)."""

@@ -1078,6 +1078,13 @@ def test_sort_neighbours_by_row_keeps_ascending_lists_whose_rows_ascend():
                 stretch[k] = stretch[k - 1]
         out = sort_neighbours_by_row(indptr, indices, row, ascending=True)
         plain = sort_neighbours_by_row(indptr, indices, row)
+        # the same along a visiting order: the lists and the rows relabelled by it
+        visit = rng.permutation(n_points)  # particle k is now visit[k], visited k-th
+        row2 = np.empty_like(row)
+        row2[visit] = row
+        by_visit = sort_neighbours_by_row(indptr, visit[indices], row2, ascending=True,
+                                          order=visit)
+        assert np.array_equal(by_visit, visit[out]), trial
         for i in range(len(lengths)):
             a, b = indptr[i], indptr[i + 1]
             mine = indices[a:b]

@@ -48,6 +48,9 @@ class Context:
     #: With ``wet_lists``: 1 for the owned rows within two cells (at least 2 radii) of a
     #: fluid row when the lists were built (``build_csr``'s ``near``), else None.
     near_fluid: np.ndarray = None
+    #: The order of the rows in each current-configuration list (``build_csr``'s
+    #: ``visit``), None: ascending index.
+    list_order: np.ndarray = None
     #: Fields the current-configuration halo does not carry (their halo rows are zero):
     #: in the mixed layout the solid's state, which only the solid's view reads, on its
     #: own reference halo (docs/performance.md).

@@ -139,10 +139,11 @@ def _count(xs, order, n_query, r2max, lo, inv_cell, ncell, reach, sparse, start,
 
 @njit(cache=True, error_model="numpy")
 def _fill(xs, order, rank_of, n_query, r2max, lo, inv_cell, ncell, reach, sparse, start,
-          cells, cell_start, indptr, indices, keep, kept, kept_cells):
-    """Second pass, all rows ``j`` in ascending order: append ``j`` to its query rows.
+          cells, cell_start, indptr, indices, keep, kept, kept_cells, visit):
+    """Second pass, all rows ``j`` in ascending order (or in the order ``visit``, if not
+    empty): append ``j`` to its query rows.
 
-    Visiting ``j`` in ascending order fills every row already sorted, with no sort.
+    Visiting ``j`` in that order fills every row already in it, with no sort.
     ``kept`` (empty: every query row keeps its list) is the running count of the slots
     whose rows keep their lists: a ``j`` with none in its cells is not searched, nor is
     one in a cell that ``kept_cells`` (:func:`reachable_cells` of those slots; empty: not
@@ -161,7 +162,8 @@ def _fill(xs, order, rank_of, n_query, r2max, lo, inv_cell, ncell, reach, sparse
         if i < n_query and keep[i]:
             dest[t] = i
     hits = np.empty(64, dtype=np.int64)
-    for j in range(n):
+    for jj in range(n):
+        j = visit[jj] if visit.shape[0] else jj
         s = rank_of[j]
         if kept_cells.shape[0] and not kept_cells[cell_of(xs, s, lo, inv_cell, ncell)]:
             continue
@@ -209,8 +211,9 @@ def _fill(xs, order, rank_of, n_query, r2max, lo, inv_cell, ncell, reach, sparse
 
 @njit(cache=True, error_model="numpy")
 def _fill_gather(xs, order, n_query, r2max, lo, inv_cell, ncell, reach, sparse, start,
-                 cells, cell_start, indptr, indices, keep):
-    """Second pass, query rows in slot order, each row sorted (insertion sort)."""
+                 cells, cell_start, indptr, indices, keep, place):
+    """Second pass, query rows in slot order, each row sorted (insertion sort) by index,
+    or by ``place`` (the place of each row in the visiting order) if not empty."""
     n = xs.shape[0]
     w = 2 * reach + 1
     rng = np.empty((w * w, 2), dtype=np.int64)
@@ -238,10 +241,12 @@ def _fill_gather(xs, order, n_query, r2max, lo, inv_cell, ncell, reach, sparse, 
                     p += 1
         if p != p1:
             return False
+        by = place.shape[0] > 0
         for a in range(p0 + 1, p1):
             v = indices[a]
+            kv = place[v] if by else v
             b = a - 1
-            while b >= p0 and indices[b] > v:
+            while b >= p0 and (place[indices[b]] if by else indices[b]) > kv:
                 indices[b + 1] = indices[b]
                 b -= 1
             indices[b + 1] = v
@@ -279,7 +284,7 @@ def _running_count(flags):
 # --------------------------------------------------------------------------- public
 
 
-def build_csr(x, n_query, radius, active=None, near=None):
+def build_csr(x, n_query, radius, active=None, near=None, visit=None):
     """Neighbour lists of ``x[:n_query]`` among all rows of ``x``, in CSR form.
 
     Parameters
@@ -303,6 +308,10 @@ def build_csr(x, n_query, radius, active=None, near=None):
         radii) of an active row, 0 for the others, the rows the count pass searches
         (the fluid step keeps its wall rows to these between sync steps,
         :func:`parsph.fluid.walls.system_rows`).
+    visit : numpy.ndarray of int, shape (N,), optional
+        A permutation of the rows: each list comes out in this order instead of
+        ascending (:func:`parsph.step.refresh.list_order`: the rows as the systems of
+        the fluid number them, whose kernels then need no sort).
 
     Returns
     -------
@@ -310,7 +319,7 @@ def build_csr(x, n_query, radius, active=None, near=None):
         Row pointers; ``indptr[0] == 0``, ``indptr[-1] == len(indices)``.
     indices : numpy.ndarray of int32, shape (indptr[-1],)
         Neighbour row numbers into ``x`` (query or halo rows); each row is sorted
-        ascending and excludes the row itself.
+        ascending (or in the order ``visit``) and excludes the row itself.
 
     Raises
     ------
@@ -364,14 +373,21 @@ def build_csr(x, n_query, radius, active=None, near=None):
     _count(xs, order, n_query, r2max, *grid, indptr, act_s, near_cells, keep, keep_s)
     act_s = near_cells = None  # (not held beside the lists)
     indices = np.empty(int(indptr[-1]), dtype=np.int32)
+    visit = np.zeros(0, dtype=np.int64) if visit is None else np.asarray(visit, np.int64)
+    if visit.shape[0] not in (0, n):
+        raise ValueError(f"visit must hold one entry per row ({n}), got {visit.shape[0]}")
     if indices.shape[0] > _GATHER_MIN_PAIRS and _disorder(order) > _GATHER_DISORDER:
-        ok = _fill_gather(xs, order, n_query, r2max, *grid, indptr, indices, keep)
+        place = np.zeros(0, dtype=np.int64)
+        if visit.shape[0]:
+            place = np.empty(n, dtype=np.int64)
+            place[visit] = np.arange(n)
+        ok = _fill_gather(xs, order, n_query, r2max, *grid, indptr, indices, keep, place)
     else:
         if active is not None:
             kept = _running_count(keep_s)
             kept_cells = reachable_cells(keep_s, *grid[2:6])
         ok = _fill(xs, order, rank_of, n_query, r2max, *grid, indptr, indices, keep, kept,
-                   kept_cells)
+                   kept_cells, visit)
     if not ok:
         raise RuntimeError("neighbour search: count and fill passes disagree (a bug)")
     return indptr, indices

@@ -374,8 +374,8 @@ class IISPH:
         # neighbours in global row order: the matrix rows come out (nearly) sorted. In
         # place: nothing reads the lists in ascending order after this (they are built
         # afresh for the next step)
-        indptr, indices = ctx.indptr, sort_neighbours_by_row(ctx.indptr, ctx.indices, row,
-                                                             inplace=True, ascending=True)
+        indptr, indices = ctx.indptr, sort_neighbours_by_row(
+            ctx.indptr, ctx.indices, row, inplace=True, ascending=True, order=ctx.list_order)
         slip = p["wall_slip"]
         rho, rho0 = p["rho"], p["rho0"]
         free = p["free_surface"]
