@@ -507,9 +507,10 @@ class IISPH:
                 wet = (fluid == 1).astype(np.uint8)
                 corr = assembly.pressure_gradient_corrected(x, p["p"], m, rho, surface, indptr,
                                                             indices, h, dim, wet)
-                p_bnd = np.where(solid > 0, p["p"], 0.0)
-                corr += assembly.pressure_gradient(x, p_bnd, m, rho, surface, indptr, indices,
-                                                   h, dim)
+                if (solid > 0).any():  # (no solid row here: it adds zero)
+                    p_bnd = np.where(solid > 0, p["p"], 0.0)
+                    corr += assembly.pressure_gradient(x, p_bnd, m, rho, surface, indptr,
+                                                       indices, h, dim)
                 grad[surface == 1] = corr[surface == 1]
         vnew = vs[:n] - dt * grad / rho0[:n, None]
         if own_solid.any():  # eq. (48): the reaction of the fluid pressure, eq. (45)
