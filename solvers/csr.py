@@ -260,6 +260,22 @@ def split_in_place(indptr, cols, vals, first, stop, oi, oj, ov):
                                 ov, cols)
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _keep_large(oj, ov, u, end, below, cut, out_cols, out_vals, k, dropped):
+    """:func:`sparsify`'s off-diagonal entries ``u, u + 1, ...`` before ``end`` whose
+    column is below ``below``: those of magnitude ``cut`` or more written at ``k`` on,
+    the others summed into ``dropped``. Returns ``(u, k, dropped)`` past them."""
+    while u < end and oj[u] < below:
+        if abs(ov[u]) >= cut:
+            out_cols[k] = oj[u]
+            out_vals[k] = ov[u]
+            k += 1
+        else:
+            dropped += ov[u]
+        u += 1
+    return u, k, dropped
+
+
 @njit(cache=True, error_model="numpy")
 def sparsify(di, dj, dv, oi, oj, ov, first, theta, out_ptr, out_cols, out_vals):
     """A sparser copy of a CSR block (rows ``first, first + 1, ...``) for a
@@ -285,15 +301,9 @@ def sparsify(di, dj, dv, oi, oj, ov, first, theta, out_ptr, out_cols, out_vals):
         cut = theta * big
         dropped = 0.0
         at = -1
-        u = oi[r]  # the off-diagonal entries below the diagonal part go first
-        while u < oi[r + 1] and oj[u] < first:
-            if abs(ov[u]) >= cut:
-                out_cols[k] = oj[u]
-                out_vals[k] = ov[u]
-                k += 1
-            else:
-                dropped += ov[u]
-            u += 1
+        # the off-diagonal entries below the diagonal part go first
+        u, k, dropped = _keep_large(oj, ov, oi[r], oi[r + 1], first, cut, out_cols, out_vals,
+                                    k, dropped)
         for q in range(di[r], di[r + 1]):
             if dj[q] == r or abs(dv[q]) >= cut:
                 if dj[q] == r:
@@ -303,14 +313,8 @@ def sparsify(di, dj, dv, oi, oj, ov, first, theta, out_ptr, out_cols, out_vals):
                 k += 1
             else:
                 dropped += dv[q]
-        while u < oi[r + 1]:
-            if abs(ov[u]) >= cut:
-                out_cols[k] = oj[u]
-                out_vals[k] = ov[u]
-                k += 1
-            else:
-                dropped += ov[u]
-            u += 1
+        _, k, dropped = _keep_large(oj, ov, u, oi[r + 1], np.iinfo(oj.dtype).max, cut,
+                                    out_cols, out_vals, k, dropped)
         if at >= 0:
             out_vals[at] += dropped
         out_ptr[r + 1] = k
