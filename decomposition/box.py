@@ -10,6 +10,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 
 @dataclass(frozen=True)
@@ -167,3 +168,18 @@ class Box:
             if self.periodic[axis]:
                 dx[..., axis] -= length[axis] * np.round(dx[..., axis] / length[axis])
         return dx
+
+
+@njit(cache=True, error_model="numpy")
+def masked_bounds(x, mask):
+    """Per-axis minimum and maximum of the rows of ``x`` with ``mask`` set (``inf`` and
+    ``-inf`` if none), without the copy ``x[mask]`` makes."""
+    n, dim = x.shape
+    lo = np.full(dim, np.inf)
+    hi = np.full(dim, -np.inf)
+    for i in range(n):
+        if mask[i]:
+            for a in range(dim):
+                lo[a] = min(lo[a], x[i, a])
+                hi[a] = max(hi[a], x[i, a])
+    return lo, hi

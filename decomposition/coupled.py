@@ -3,60 +3,11 @@ and near its rows that the fluid can wet (the mixed layout, docs/decomposition.m
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
-from decomposition.halo import Halo, _box_images, _image_send_lists, _union
+from decomposition.box import masked_bounds
+from decomposition.halo import Halo, _box_images, _image_send_lists, _near_boxes
 
 __all__ = ["coupled_halo"]
-
-
-@njit(cache=True, error_model="numpy")
-def _wet_bounds(x, fluid, shifts, flo, fhi, reach):
-    """Per-axis bounds ``(lo, hi)`` of the rows of ``x`` that are fluid (no boxes:
-    ``flo`` empty), or else of its other rows that lie (an image ``x + shifts[k]`` of
-    them) within ``reach`` of any of the boxes ``[flo[b], fhi[b]]`` (``inf``, ``-inf``
-    where none)."""
-    n, dim = x.shape
-    lo = np.full(dim, np.inf)
-    hi = np.full(dim, -np.inf)
-    wet = flo.shape[0] > 0
-    widen = np.full(flo.shape[0], reach)
-    unions = [_union(flo, fhi, widen, shifts[s]) for s in range(shifts.shape[0])]
-    for i in range(n):
-        if not wet:
-            if not fluid[i]:
-                continue
-        else:
-            if fluid[i]:
-                continue
-            k = -1
-            for s in range(shifts.shape[0]):
-                ulo, uhi = unions[s]
-                far = False
-                for a in range(dim):  # the union of the widened boxes first
-                    if not (x[i, a] >= ulo[a] and x[i, a] <= uhi[a]):
-                        far = True
-                        break
-                if far:
-                    continue
-                for b in range(flo.shape[0]):
-                    inside = True
-                    for a in range(dim):
-                        y = x[i, a] + shifts[s, a]
-                        if not (y >= flo[b, a] - reach and y <= fhi[b, a] + reach):
-                            inside = False
-                            break
-                    if inside:
-                        k = 1
-                        break
-                if k == 1:
-                    break
-            if k < 0:
-                continue
-        for a in range(dim):
-            lo[a] = min(lo[a], x[i, a])
-            hi[a] = max(hi[a], x[i, a])
-    return lo, hi
 
 
 def coupled_halo(comm, x_owned, fluid, radius: float, box=None) -> Halo:
@@ -102,13 +53,18 @@ def coupled_halo(comm, x_owned, fluid, radius: float, box=None) -> Halo:
     if radius < 0:
         fbox = wbox = empty
     else:
-        none = np.empty((0, dim))
-        fbox = _wet_bounds(x, fluid, shifts, none, none, 0.0)
+        fbox = masked_bounds(x, fluid)
     fluid_boxes = [b for b in comm.allgather(fbox) if not np.any(b[0] > b[1])]
     if radius >= 0 and fluid_boxes:
+        # the rows but the fluid that lie (an image of them) within 2 radii of any fluid box
         flo = np.array([b[0] for b in fluid_boxes], dtype=np.float64)
         fhi = np.array([b[1] for b in fluid_boxes], dtype=np.float64)
-        wbox = _wet_bounds(x, fluid, shifts, flo, fhi, 2.0 * radius)
+        reach = np.full(len(flo), 2.0 * radius)
+        only, dry = np.ones(len(flo), dtype=np.bool_), ~fluid
+        wet = np.zeros(len(x), dtype=np.bool_)
+        for s in shifts:
+            wet |= _near_boxes(x, s, flo, fhi, reach, only, dry)
+        wbox = masked_bounds(x, wet)
     elif radius >= 0:
         wbox = empty
     boxes = comm.allgather((fbox, wbox))

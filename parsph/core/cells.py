@@ -44,21 +44,6 @@ def _bounds(x):
 
 
 @njit(cache=True, error_model="numpy")
-def masked_bounds(x, mask):
-    """Per-axis minimum and maximum of the rows of ``x`` with ``mask`` set (``inf`` and
-    ``-inf`` if none), without the copy ``x[mask]`` makes."""
-    n, dim = x.shape
-    lo = np.full(dim, np.inf)
-    hi = np.full(dim, -np.inf)
-    for i in range(n):
-        if mask[i]:
-            for a in range(dim):
-                lo[a] = min(lo[a], x[i, a])
-                hi[a] = max(hi[a], x[i, a])
-    return lo, hi
-
-
-@njit(cache=True, error_model="numpy")
 def reachable_cells(flag_s, ncell, reach, sparse, start):
     """Per cell of the dense grid (linear id, as :func:`_ranges` numbers them): 1 when a
     slot with ``flag_s`` set lies in the cells within ``reach`` cells of it along every

@@ -11,7 +11,7 @@ from decomposition.box import Box
 from decomposition.halo import Halo
 from decomposition.partition import RCB
 from decomposition.reduce import global_any
-from parsph.core.cells import masked_bounds
+from decomposition.box import masked_bounds
 from parsph.core.particles import PHASE_WALL, ParticleSet
 
 

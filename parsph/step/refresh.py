@@ -12,7 +12,7 @@ from decomposition.coupled import coupled_halo
 from decomposition.halo import Halo
 from decomposition.partition import RCB, imbalance
 from decomposition.reduce import global_any, global_reduce
-from parsph.core.cells import masked_bounds
+from decomposition.box import masked_bounds
 from parsph.core.neighbours import build_csr
 from parsph.core.particles import PHASE_FLUID, PHASE_SOLID, PHASE_WALL
 from parsph.errors import NumericalError
