@@ -203,17 +203,24 @@ class MatrixAssembly:
         self._drop_product()
         self._ksp.setOperators(self._mat)
 
-    def _check_csr(self, indptr, cols, values, stats=None):
-        """``(exception type, message)`` for a bad CSR block of the owned rows, else None.
-        ``stats``: a callable returning :func:`solvers.csr.check_block`'s figures of the
-        block, called once its shape is known to be right (default: that function)."""
+    def _check_csr(self, indptr, cols, values):
+        """``(exception type, message)`` for a bad CSR block of the owned rows, else None."""
+        bad = self._bad_shape(indptr, cols, values)
+        return bad if bad is not None else self._bad_values(cols.size,
+                                                             *check_block(cols, values))
+
+    def _bad_shape(self, indptr, cols, values):
+        """:meth:`_check_csr` of the block's shapes."""
         if indptr.shape != (self.n_local + 1,) or cols.shape != values.shape or cols.ndim != 1 \
                 or indptr[0] != 0 or indptr[-1] != cols.size:
             return ValueError, (
                 f"{self.prefix}: need indptr of {self.n_local + 1} entries from 0 to len(cols) and "
                 f"cols, values of one length; got {indptr.shape}, {cols.shape}, {values.shape}")
-        lo, hi, bad = stats() if stats is not None else check_block(cols, values)
-        if cols.size and (lo < 0 or hi >= self.n_global):
+        return None
+
+    def _bad_values(self, nnz, lo, hi, bad):
+        """:meth:`_check_csr` of the block's figures (:func:`solvers.csr.check_block`)."""
+        if nnz and (lo < 0 or hi >= self.n_global):
             return ValueError, (
                 f"{self.prefix}: columns in {int(lo)}..{int(hi)}, outside the global range "
                 f"0..{self.n_global - 1}")
@@ -306,20 +313,17 @@ class MatrixAssembly:
         indptr, cols, values = self._csr_arrays(indptr, cols, values)
         first, stop = self.owned_range
         int_type = indptr.dtype
-        if self.comm.size > 1 and indptr.shape == (self.n_local + 1,) and cols.ndim == 1:
-            n_off = cols.size - count_diagonal(cols, first, stop)
-            off = (np.empty_like(indptr), np.empty(n_off, dtype=int_type), np.empty(n_off))
-        else:  # the block is its diagonal part
-            off = (np.empty(0, dtype=int_type), np.empty(0, dtype=int_type), np.empty(0))
-        done = []
-
-        def prepare():
-            done.append(prepare_block(indptr, cols, values, first, stop, unit_diagonal, *off))
-            return done[0][1:4]
-
-        bits = agree(self.comm, self._check_csr(indptr, cols, values, prepare),
-                     0 if same_unknowns else 2)
-        scale, _, _, _, p, q = done[0]
+        problem = self._bad_shape(indptr, cols, values)
+        if problem is None:
+            if self.comm.size > 1:
+                n_off = cols.size - count_diagonal(cols, first, stop)
+                off = (np.empty_like(indptr), np.empty(n_off, dtype=int_type), np.empty(n_off))
+            else:  # the block is its diagonal part
+                off = (np.empty(0, dtype=int_type), np.empty(0, dtype=int_type), np.empty(0))
+            scale, lo, hi, bad, p, q = prepare_block(indptr, cols, values, first, stop,
+                                                     unit_diagonal, *off)
+            problem = self._bad_values(cols.size, lo, hi, bad)
+        bits = agree(self.comm, problem, 0 if same_unknowns else 2)
         if not off[0].size:
             off = (np.zeros_like(indptr), off[1], off[2])
         diag, off = (indptr, cols[:p], values[:p]), (off[0], off[1][:q], off[2][:q])
