@@ -206,6 +206,15 @@ def test_sparse_layout(monkeypatch, dim):
     assert len(calls) == 3
 
 
+def test_pairs_beyond_the_first_room_are_recorded():
+    """The count records the pairs for the fill in an array that grows: a set where every
+    pair is a neighbour pair (179,700 pairs, room for 5,824 at first) gets full lists."""
+    rng = np.random.default_rng(5)
+    x = rng.uniform(0.0, 1.0, (600, 3))
+    indptr, _ = check_against_brute_force(x, 600, 2.0)
+    assert np.all(np.diff(indptr) == 599)
+
+
 def test_gather_fill_gives_the_same_lists(monkeypatch):
     """The gather-and-sort fill (large, incoherently ordered sets) agrees."""
     import parsph.core.neighbours as nb
@@ -213,7 +222,7 @@ def test_gather_fill_gives_the_same_lists(monkeypatch):
     rng = np.random.default_rng(13)
     x = rng.uniform(0.0, 1.0, (2000, 3))
     ref = build_csr(x, 1500, 0.12)
-    monkeypatch.setattr(nb, "_GATHER_MIN_PAIRS", 0)
+    monkeypatch.setattr(nb, "_GATHER_MIN_ROWS", 0)
     monkeypatch.setattr(nb, "_GATHER_DISORDER", -1.0)
     got = check_against_brute_force(x, 1500, 0.12)
     assert np.array_equal(ref[0], got[0]) and np.array_equal(ref[1], got[1])
@@ -234,7 +243,7 @@ def test_lists_come_in_the_visiting_order(monkeypatch, gather):
     place[visit] = np.arange(1500)
     ref = build_csr(x, n_query, 0.12)
     if gather:
-        monkeypatch.setattr(nb, "_GATHER_MIN_PAIRS", 0)
+        monkeypatch.setattr(nb, "_GATHER_MIN_ROWS", 0)
         monkeypatch.setattr(nb, "_GATHER_DISORDER", -1.0)
     got = build_csr(x, n_query, 0.12, visit=visit)
     assert np.array_equal(ref[0], got[0])
@@ -269,12 +278,12 @@ def test_active_rows_keep_lists_only_where_an_active_row_is_near(case, data):
     ref = brute_force_active(x, n_query, radius, active)
     got = build_csr(x, n_query, radius, active=active)
     assert np.array_equal(got[0], ref[0]) and np.array_equal(got[1], ref[1])
-    gather, disorder = nb._GATHER_MIN_PAIRS, nb._GATHER_DISORDER
+    gather, disorder = nb._GATHER_MIN_ROWS, nb._GATHER_DISORDER
     try:
-        nb._GATHER_MIN_PAIRS, nb._GATHER_DISORDER = 0, -1.0
+        nb._GATHER_MIN_ROWS, nb._GATHER_DISORDER = 0, -1.0
         got = build_csr(x, n_query, radius, active=active.astype(np.uint8))
     finally:
-        nb._GATHER_MIN_PAIRS, nb._GATHER_DISORDER = gather, disorder
+        nb._GATHER_MIN_ROWS, nb._GATHER_DISORDER = gather, disorder
     assert np.array_equal(got[0], ref[0]) and np.array_equal(got[1], ref[1])
     if len(x):  # all active: the plain lists
         plain = build_csr(x, n_query, radius)

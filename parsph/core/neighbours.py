@@ -24,12 +24,12 @@ Algorithm
    :math:`3^{D-1}` contiguous slot ranges. On a 3D lattice with radius 2.4 d this
    leaves about 5 candidates per neighbour instead of 7.
 4. Count pass (every slot in order, each pair tested once from its lower slot and
-   counted at both ends): ``indptr``. Fill pass: every
-   row ``j`` in ascending order appends ``j`` to the rows of its query neighbours
-   (pairs are symmetric), so each row comes out sorted ascending without a sort. When
-   the rows are in a spatially incoherent order and the lists are large, these
-   scattered writes miss the caches; the fill then gathers each query row and sorts
-   it instead. Either way the result is the same and does not depend on the internal
+   counted at both ends, its upper end recorded): ``indptr``. Fill pass, from the
+   recorded pairs with no second search: every row ``j`` in ascending order appends
+   ``j`` to the rows of its query neighbours (pairs are symmetric), so each row comes
+   out sorted ascending without a sort. When the rows are many and in a spatially
+   incoherent order, these scattered writes miss the caches; the pairs are then not
+   recorded, and the fill searches and sorts each query row instead. Either way the result is the same and does not depend on the internal
    order (deterministic).
 
 Performance depends on the row order of ``x``: rows in a spatially coherent order (as
@@ -59,30 +59,37 @@ from parsph.core.cells import (_MAX_CELLS_PER_AXIS, _binned, _checked_box, _pad_
 __all__ = ["build_csr", "cell_order", "pair_count", "row_lengths", "row_of_pairs"]
 
 _INT32_MAX = np.iinfo(np.int32).max
-#: The fill pass scatters (rows come out sorted) unless the rows are in a spatially
-#: incoherent order and the lists outgrow the caches; then it gathers and sorts each
-#: row, which measured 2x faster for 1e6 particles in random order (same result).
-_GATHER_MIN_PAIRS = 1 << 24
+#: The fill pass scatters the recorded pairs (rows come out sorted) unless the rows are
+#: many and in a spatially incoherent order; then it gathers and sorts each row, which
+#: measured 2x faster for 1e6 particles in random order (same result).
+_GATHER_MIN_ROWS = 1 << 18
 _GATHER_DISORDER = 0.08
 
 
 @njit(cache=True, error_model="numpy")
 def _count(xs, order, n_query, r2max, lo, inv_cell, ncell, reach, sparse, start, cells,
-           cell_start, indptr, act_s, near_cells, keep, keep_s):
+           cell_start, indptr, act_s, near_cells, keep, up_ptr, up):
     """First pass, every slot in order, each pair once (from its lower slot): ``indptr``
     from the neighbour counts.
 
     ``act_s`` (the running count of active slots, ``act_s[t]`` active slots before slot
     ``t``; empty: every row active): a query row that is not active keeps its list
-    (``keep[i] = keep_s[s] = 1``) only when an active row is among its neighbours, and
+    (``keep[i] = 1``) only when an active row is among its neighbours, and
     gets an empty one otherwise. A pair is tested once, from its lower slot, and counted
     at both ends (with the active rows among each end's neighbours): the full search
     from both ends had cost 26 ms where this costs 20 (the 3D tank of
     ``jobs/bench_memory.py``, 112,761 particles). Every slot is the lower end of some
     pairs, halo rows too; one in a cell that ``near_cells`` (:func:`reachable_cells` of
     the active slots, two cells each way; empty: not known) leaves out is farther than
-    two radii from every active row, so none of its pairs has an end with a list."""
+    two radii from every active row, so none of its pairs has an end with a list.
+
+    With ``up_ptr`` of length N + 1 (empty: not recorded) the upper ends of each slot's
+    pairs are recorded too: those of slot ``s`` are ``up[up_ptr[s]:up_ptr[s + 1]]``
+    (slots, in the order found); ``up`` grows as needed and is returned (the same array
+    if it did not)."""
     n = xs.shape[0]
+    record = up_ptr.shape[0] > 0
+    pos = 0
     w = 2 * reach + 1
     rng = np.empty((w * w, 2), dtype=np.int64)
     gap2 = np.empty((3, w))
@@ -90,10 +97,18 @@ def _count(xs, order, n_query, r2max, lo, inv_cell, ncell, reach, sparse, start,
     masked = act_s.shape[0] > 0
     wet = np.zeros(n if masked else 0, dtype=np.int32)  # active neighbours of each slot
     for s in range(n):
+        if record:
+            up_ptr[s] = pos
         if near_cells.shape[0] and not near_cells[cell_of(xs, s, lo, inv_cell, ncell)]:
             continue
         nr = _ranges(xs, s, lo, inv_cell, ncell, reach, sparse, start, cells, cell_start, gap2,
                      rng)
+        if record:
+            need = pos
+            for k in range(nr):
+                need += max(rng[k, 1] - max(rng[k, 0], s + 1), 0)
+            if need > up.shape[0]:
+                up = _grown(up, pos, need)
         x0 = xs[s, 0]
         x1 = xs[s, 1]
         x2 = xs[s, 2]
@@ -111,6 +126,9 @@ def _count(xs, order, n_query, r2max, lo, inv_cell, ncell, reach, sparse, start,
                     if d0 * d0 + d1 * d1 + d2 * d2 < r2max:
                         c += 1
                         cnt[t] += 1
+                        if record:
+                            up[pos] = t
+                            pos += 1
                         wv += act_s[t + 1] - act_s[t]
                         wet[t] += a_s
             wet[s] += wv
@@ -123,86 +141,86 @@ def _count(xs, order, n_query, r2max, lo, inv_cell, ncell, reach, sparse, start,
                     if d0 * d0 + d1 * d1 + d2 * d2 < r2max:
                         c += 1
                         cnt[t] += 1
+                        if record:
+                            up[pos] = t
+                            pos += 1
         cnt[s] += c
+    if record:
+        up_ptr[n] = pos
     for s in range(n):
         i = order[s]
         if i >= n_query:
             continue
         k = 1 if not masked or act_s[s + 1] > act_s[s] or wet[s] > 0 else 0
         keep[i] = k
-        keep_s[s] = k
         indptr[i + 1] = cnt[s] if k else 0
     indptr[0] = 0
     for i in range(n_query):
         indptr[i + 1] += indptr[i]
+    return up
 
 
 @njit(cache=True, error_model="numpy")
-def _fill(xs, order, rank_of, n_query, r2max, lo, inv_cell, ncell, reach, sparse, start,
-          cells, cell_start, indptr, indices, keep, kept, kept_cells, visit):
-    """Second pass, all rows ``j`` in ascending order (or in the order ``visit``, if not
-    empty): append ``j`` to its query rows.
+def _grown(a, used, need):
+    """A copy of ``a`` with room for ``need`` entries (at least 1.5 times as many), its
+    first ``used`` kept."""
+    b = np.empty(max(need, a.shape[0] + a.shape[0] // 2), dtype=a.dtype)
+    b[:used] = a[:used]
+    return b
 
-    Visiting ``j`` in that order fills every row already in it, with no sort.
-    ``kept`` (empty: every query row keeps its list) is the running count of the slots
-    whose rows keep their lists: a ``j`` with none in its cells is not searched, nor is
-    one in a cell that ``kept_cells`` (:func:`reachable_cells` of those slots; empty: not
-    known) marks as out of their reach.
-    """
-    n = xs.shape[0]
-    w = 2 * reach + 1
-    rng = np.empty((w * w, 2), dtype=np.int64)
-    gap2 = np.empty((3, w))
-    cursor = indptr[:-1].copy()
-    # per slot: the query row whose list it is in, -1 if none (one load per hit instead of
-    # the row's and its keep flag: 47.6 -> 44.4 ms for the 3D tank of bench_memory.py)
+
+@njit(cache=True, error_model="numpy")
+def _fill_pairs(order, rank_of, n_query, indptr, indices, keep, up_ptr, up, visit):
+    """Second pass from the pairs :func:`_count` recorded: all rows ``j`` in ascending
+    order (or in the order ``visit``, if not empty) append ``j`` to their query rows.
+
+    The pairs of slot ``s`` are its upper ends ``up[up_ptr[s]:up_ptr[s + 1]]`` and its
+    lower ends, the slots that recorded ``s``, gathered here into a second array (the
+    transpose). Visiting ``j`` in that order fills every row already in it, with no sort,
+    and no pair is searched twice (the search from every row, as the count does it from
+    the lower ends, had cost 31 ms beside the count's 21: the 3D dam break of
+    ``jobs/bench_splishsplash.py``, 72,790 rows, 1.9 M entries)."""
+    n = order.shape[0]
+    # per slot: the query row whose list it is in, -1 if none
     dest = np.full(n, -1, dtype=np.int32)
     for t in range(n):
         i = order[t]
         if i < n_query and keep[i]:
             dest[t] = i
-    hits = np.empty(64, dtype=np.int64)
+    # the lower ends with a list only: a pair reaches the list of its lower end s
+    # through low[...] of its upper end
+    low_ptr = np.zeros(n + 1, dtype=np.int64)
+    for s in range(n):
+        if dest[s] >= 0:
+            for q in range(up_ptr[s], up_ptr[s + 1]):
+                low_ptr[up[q] + 1] += 1
+    for s in range(n):
+        low_ptr[s + 1] += low_ptr[s]
+    low = np.empty(low_ptr[n], dtype=np.int32)
+    at = low_ptr[:-1].copy()
+    for s in range(n):
+        if dest[s] >= 0:
+            for q in range(up_ptr[s], up_ptr[s + 1]):
+                t = up[q]
+                low[at[t]] = s
+                at[t] += 1
+    cursor = indptr[:-1].copy()
     for jj in range(n):
         j = visit[jj] if visit.shape[0] else jj
         s = rank_of[j]
-        if kept_cells.shape[0] and not kept_cells[cell_of(xs, s, lo, inv_cell, ncell)]:
-            continue
-        nr = _ranges(xs, s, lo, inv_cell, ncell, reach, sparse, start, cells, cell_start, gap2,
-                     rng)
-        ncand = 0
-        for k in range(nr):
-            ncand += rng[k, 1] - rng[k, 0]
-        if kept.shape[0]:
-            wanted = 0
-            for k in range(nr):
-                wanted += kept[rng[k, 1]] - kept[rng[k, 0]]
-            if wanted == 0:
-                continue
-        if ncand > hits.shape[0]:
-            hits = np.empty(2 * ncand, dtype=np.int64)
-        x0 = xs[s, 0]
-        x1 = xs[s, 1]
-        x2 = xs[s, 2]
-        # branch-free compaction of the slots within the radius (self included) ...
-        p = 0
-        for k in range(nr):
-            for t in range(rng[k, 0], rng[k, 1]):
-                d0 = xs[t, 0] - x0
-                d1 = xs[t, 1] - x1
-                d2 = xs[t, 2] - x2
-                hits[p] = t
-                p += d0 * d0 + d1 * d1 + d2 * d2 < r2max
-        # ... then the scatter of j into the rows of the query particles among them
-        for q in range(p):
-            t = hits[q]
-            i = dest[t]
-            if i >= 0 and t != s:
+        for q in range(up_ptr[s], up_ptr[s + 1]):
+            i = dest[up[q]]
+            if i >= 0:
                 c = cursor[i]
-                if c < indptr[i + 1]:  # never true for a consistent count
+                if c < indptr[i + 1]:  # never false for a consistent count
                     indices[c] = j
                 cursor[i] = c + 1
-    # the passes agree by construction (symmetric squared distances, complete ranges);
-    # a mismatch would be a bug, reported rather than returned as a corrupt list
+        for q in range(low_ptr[s], low_ptr[s + 1]):
+            i = dest[low[q]]
+            c = cursor[i]
+            if c < indptr[i + 1]:
+                indices[c] = j
+            cursor[i] = c + 1
     for i in range(n_query):
         if cursor[i] != indptr[i + 1]:
             return False
@@ -360,34 +378,35 @@ def build_csr(x, n_query, radius, active=None, near=None, visit=None):
     # is not searched (the dry walls and the type-I solids of a coupled scene, about half
     # its rows, had cost a pruned range search each in both passes: the lists of the 3D
     # tank of jobs/bench_memory.py, 112,761 particles, took 87 ms, then 78)
-    act_s = kept = np.zeros(0, dtype=np.int32)
-    near_cells = kept_cells = np.zeros(0, dtype=np.uint8)
+    act_s = np.zeros(0, dtype=np.int32)
+    near_cells = np.zeros(0, dtype=np.uint8)
     if active is not None:
         act_s = _running_count(active[order])
         ncell, reach, sparse, start = grid[2:6]
         near_cells = reachable_cells(active[order], ncell, 2 * reach, sparse, start)
         if near is not None:
             _near_rows(xs, order, n_query, grid[0], grid[1], ncell, near_cells, near)
-    keep = np.zeros(n_query, dtype=np.uint8)
-    keep_s = np.zeros(n, dtype=np.uint8)
-    _count(xs, order, n_query, r2max, *grid, indptr, act_s, near_cells, keep, keep_s)
-    act_s = near_cells = None  # (not held beside the lists)
-    indices = np.empty(int(indptr[-1]), dtype=np.int32)
     visit = np.zeros(0, dtype=np.int64) if visit is None else np.asarray(visit, np.int64)
     if visit.shape[0] not in (0, n):
         raise ValueError(f"visit must hold one entry per row ({n}), got {visit.shape[0]}")
-    if indices.shape[0] > _GATHER_MIN_PAIRS and _disorder(order) > _GATHER_DISORDER:
+    # the pairs are recorded for the fill, unless the rows are many and in a spatially
+    # incoherent order: the fill then gathers and sorts each row (_GATHER_MIN_ROWS)
+    gather = n > _GATHER_MIN_ROWS and _disorder(order) > _GATHER_DISORDER
+    up_ptr = np.zeros(0 if gather else n + 1, dtype=np.int64)
+    up = np.empty(0 if gather else 8 * n + 1024, dtype=np.int32)
+    keep = np.zeros(n_query, dtype=np.uint8)
+    up = _count(xs, order, n_query, r2max, *grid, indptr, act_s, near_cells, keep, up_ptr,
+                up)
+    act_s = near_cells = None  # (not held beside the lists)
+    indices = np.empty(int(indptr[-1]), dtype=np.int32)
+    if gather:
         place = np.zeros(0, dtype=np.int64)
         if visit.shape[0]:
             place = np.empty(n, dtype=np.int64)
             place[visit] = np.arange(n)
         ok = _fill_gather(xs, order, n_query, r2max, *grid, indptr, indices, keep, place)
     else:
-        if active is not None:
-            kept = _running_count(keep_s)
-            kept_cells = reachable_cells(keep_s, *grid[2:6])
-        ok = _fill(xs, order, rank_of, n_query, r2max, *grid, indptr, indices, keep, kept,
-                   kept_cells, visit)
+        ok = _fill_pairs(order, rank_of, n_query, indptr, indices, keep, up_ptr, up, visit)
     if not ok:
         raise RuntimeError("neighbour search: count and fill passes disagree (a bug)")
     return indptr, indices
