@@ -49,6 +49,20 @@ def test_splishsplash_fluid_block_matches_the_parsph_column(comm, tmp_path):
         assert np.allclose(axes[block_ax], (np.arange(len(axes[block_ax])) + 0.5) * d)
 
 
+def test_splishsplash_times_parsph_over_steps_2_to_n_as_the_peer(tmp_path):
+    """jobs/bench_splishsplash.py times parsph as SPlisHSPlasH: the N steps at the mean cost
+    of steps 2..N, from stats.csv's elapsed_s (here 3.0 s of build and a first step of
+    1.0 s, then 0.5 s a step: 4 steps cost 2.0 s, not parsph's own 4.5 s)."""
+    from bench_splishsplash import steps_time
+
+    path = tmp_path / "stats.csv"
+    path.write_text("step,time,elapsed_s\n1,0.1,4.0\n2,0.2,4.5\n3,0.3,5.0\n4,0.4,5.5\n")
+    assert steps_time(str(path)) == pytest.approx(2.0)
+    path.write_text("step,time,elapsed_s\n1,0.1,4.0\n")
+    with pytest.raises(SystemExit, match="1 step"):
+        steps_time(str(path))
+
+
 def test_overhead_fit_recovers_the_fixed_cost_and_the_slope():
     """jobs/bench_overhead.py: the intercept of s/step against particles is the fixed cost."""
     from bench_overhead import fit

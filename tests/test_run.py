@@ -36,6 +36,10 @@ def test_kinematic_run_moves_and_conserves(comm, mpi_tmp_path, text):
         assert len(rows) == summary["steps"]
         assert all(int(r["n_particles"]) == len(first["id"]) for r in rows)
         assert float(rows[-1]["time"]) == end < scene.run.end_time + float(rows[-1]["dt"])
+        # the wall seconds since the start, at the end of each step: rising, within the run's
+        elapsed = [float(r["elapsed_s"]) for r in rows]
+        assert 0 < elapsed[0] and all(b >= a for a, b in zip(elapsed, elapsed[1:]))
+        assert elapsed[-1] <= summary["wall_s"]
 
 
 @pytest.mark.mpi

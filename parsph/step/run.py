@@ -332,6 +332,7 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
                 last["ke"], row["kinetic_energy"], last["ee"], ee, row.pop("mass"), g, dt,
                 float(row.get("density_work") or 0.0))
             last.update(ke=row["kinetic_energy"], ee=ee)
+            row["elapsed_s"] = time.perf_counter() - wall0
             stats.write(row)
             bar.update(ctx.time, ctx.step)
             if ctx.time >= next_ck - 1e-9 * ck_every and ctx.at_sync_step:

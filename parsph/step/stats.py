@@ -74,11 +74,12 @@ def stats_row(ctx, dt, stage_objs) -> dict:
 
 
 def stats_columns(stages) -> list[str]:
-    """stats.csv columns: counts, energy, each stage's own columns, wall seconds per stage."""
+    """stats.csv columns: counts, energy, each stage's own columns, wall seconds per stage,
+    and the wall seconds since the run started (``elapsed_s``, at the end of the step)."""
     cols = ["step", "time", "dt", "n_particles", "n_solid", "n_fluid", "n_wall",
             "n_owned_min", "n_owned_max", "kinetic_energy", "energy_bound", "energy_ratio",
             "max_speed", "front"]
     cols += [c for s in stages for c in getattr(s, "stats_columns", ())]
     cols += [f"wall_s_{name}" for name, _ in INFRASTRUCTURE]
-    cols += [f"wall_s_{s.name}" for s in stages] + ["wall_s_output"]
+    cols += [f"wall_s_{s.name}" for s in stages] + ["wall_s_output", "elapsed_s"]
     return cols
