@@ -29,8 +29,8 @@ Algorithm
    ``j`` to the rows of its query neighbours (pairs are symmetric), so each row comes
    out sorted ascending without a sort. When the rows are many and in a spatially
    incoherent order, these scattered writes miss the caches; the pairs are then not
-   recorded, and the fill searches and sorts each query row instead. Either way the result is the same and does not depend on the internal
-   order (deterministic).
+   recorded, and the fill searches and sorts each query row instead. Either way the
+   result is the same and does not depend on the internal order (deterministic).
 
 Performance depends on the row order of ``x``: rows in a spatially coherent order (as
 created on a lattice, or after :func:`cell_order`) are searched 1.5-2x faster than a
@@ -60,8 +60,8 @@ __all__ = ["build_csr", "cell_order", "pair_count", "row_lengths", "row_of_pairs
 
 _INT32_MAX = np.iinfo(np.int32).max
 #: The fill pass scatters the recorded pairs (rows come out sorted) unless the rows are
-#: many and in a spatially incoherent order; then it gathers and sorts each row, which
-#: measured 2x faster for 1e6 particles in random order (same result).
+#: many and in a spatially incoherent order; then it gathers and sorts each row (same
+#: result): for 1e6 particles in random order 3.8 s against 4.5-5.1 s.
 _GATHER_MIN_ROWS = 1 << 18
 _GATHER_DISORDER = 0.08
 
