@@ -89,6 +89,8 @@ def _count(xs, order, n_query, r2max, lo, inv_cell, ncell, reach, sparse, start,
     if it did not)."""
     n = xs.shape[0]
     record = up_ptr.shape[0] > 0
+    # the hits of a slot go to ``up`` (recorded) or to a scratch array (not)
+    buf = up if record else np.empty(64, dtype=np.int32)
     pos = 0
     w = 2 * reach + 1
     rng = np.empty((w * w, 2), dtype=np.int64)
@@ -103,48 +105,41 @@ def _count(xs, order, n_query, r2max, lo, inv_cell, ncell, reach, sparse, start,
             continue
         nr = _ranges(xs, s, lo, inv_cell, ncell, reach, sparse, start, cells, cell_start, gap2,
                      rng)
-        if record:
-            need = pos
-            for k in range(nr):
-                need += max(rng[k, 1] - max(rng[k, 0], s + 1), 0)
-            if need > up.shape[0]:
-                up = _grown(up, pos, need)
+        p0 = pos if record else 0
+        need = p0
+        for k in range(nr):
+            need += max(rng[k, 1] - max(rng[k, 0], s + 1), 0)
+        if need > buf.shape[0]:
+            buf = _grown(buf, p0, need)
         x0 = xs[s, 0]
         x1 = xs[s, 1]
         x2 = xs[s, 2]
-        c = 0
-        # two loops, not one with the masked updates under a test: that one measured
-        # 21.4 against 20.5 ms with a mask and 40.3 against 34.2 ms without
+        # branch-free: every candidate written, the hits kept, then the hits counted (a
+        # hit is one candidate in four or five, and a branch on it was mispredicted: the
+        # count of the 3D dam break of jobs/bench_splishsplash.py took 22.4 ms, now 16.9)
+        q = p0
+        for k in range(nr):
+            for t in range(max(rng[k, 0], s + 1), rng[k, 1]):
+                d0 = xs[t, 0] - x0
+                d1 = xs[t, 1] - x1
+                d2 = xs[t, 2] - x2
+                buf[q] = t
+                q += d0 * d0 + d1 * d1 + d2 * d2 < r2max
         if masked:
             a_s = act_s[s + 1] - act_s[s]
             wv = 0
-            for k in range(nr):
-                for t in range(max(rng[k, 0], s + 1), rng[k, 1]):
-                    d0 = xs[t, 0] - x0
-                    d1 = xs[t, 1] - x1
-                    d2 = xs[t, 2] - x2
-                    if d0 * d0 + d1 * d1 + d2 * d2 < r2max:
-                        c += 1
-                        cnt[t] += 1
-                        if record:
-                            up[pos] = t
-                            pos += 1
-                        wv += act_s[t + 1] - act_s[t]
-                        wet[t] += a_s
+            for e in range(p0, q):
+                t = buf[e]
+                cnt[t] += 1
+                wv += act_s[t + 1] - act_s[t]
+                wet[t] += a_s
             wet[s] += wv
         else:
-            for k in range(nr):
-                for t in range(max(rng[k, 0], s + 1), rng[k, 1]):
-                    d0 = xs[t, 0] - x0
-                    d1 = xs[t, 1] - x1
-                    d2 = xs[t, 2] - x2
-                    if d0 * d0 + d1 * d1 + d2 * d2 < r2max:
-                        c += 1
-                        cnt[t] += 1
-                        if record:
-                            up[pos] = t
-                            pos += 1
-        cnt[s] += c
+            for e in range(p0, q):
+                cnt[buf[e]] += 1
+        cnt[s] += q - p0
+        if record:
+            pos = q
     if record:
         up_ptr[n] = pos
     for s in range(n):
@@ -157,7 +152,7 @@ def _count(xs, order, n_query, r2max, lo, inv_cell, ncell, reach, sparse, start,
     indptr[0] = 0
     for i in range(n_query):
         indptr[i + 1] += indptr[i]
-    return up
+    return buf if record else up
 
 
 @njit(cache=True, error_model="numpy")
@@ -202,10 +197,12 @@ def _fill_pairs(order, rank_of, n_query, indptr, indices, keep, up_ptr, up, visi
 
     The pairs of slot ``s`` are its upper ends ``up[up_ptr[s]:up_ptr[s + 1]]`` and its
     lower ends, the slots that recorded ``s``, gathered here into a second array (the
-    transpose). Visiting ``j`` in that order fills every row already in it, with no sort,
-    and no pair is searched twice (the search from every row, as the count does it from
-    the lower ends, had cost 31 ms beside the count's 21: the 3D dam break of
-    ``jobs/bench_splishsplash.py``, 72,790 rows, 1.9 M entries)."""
+    transpose), each as the query row whose list it is in (the upper ends are replaced
+    so in place, and those without a list dropped: ``up`` is scratch). Visiting ``j`` in
+    that order fills every row already in it, with no sort, and no pair is searched twice
+    (the search from every row, as the count does it from the lower ends, had cost 31 ms
+    beside the count's 21: the 3D dam break of ``jobs/bench_splishsplash.py``, 72,790
+    rows, 1.9 M entries)."""
     n = order.shape[0]
     # per slot: the query row whose list it is in, -1 if none
     dest = np.full(n, -1, dtype=np.int32)
@@ -222,27 +219,36 @@ def _fill_pairs(order, rank_of, n_query, indptr, indices, keep, up_ptr, up, visi
                 low_ptr[up[q] + 1] += 1
     for s in range(n):
         low_ptr[s + 1] += low_ptr[s]
-    low = np.empty(low_ptr[n], dtype=np.int32)
+    low = np.empty(low_ptr[n], dtype=np.int32)  # (their rows)
     at = low_ptr[:-1].copy()
     for s in range(n):
-        if dest[s] >= 0:
+        i = dest[s]
+        if i >= 0:
             for q in range(up_ptr[s], up_ptr[s + 1]):
                 t = up[q]
-                low[at[t]] = s
+                low[at[t]] = i
                 at[t] += 1
+    # the upper ends in place by their rows, those without a list dropped (branch-free);
+    # ``at`` becomes the end of each slot's (one load a pair less in the scatter)
+    for s in range(n):
+        e = up_ptr[s]
+        for q in range(up_ptr[s], up_ptr[s + 1]):
+            i = dest[up[q]]
+            up[e] = i
+            e += i >= 0
+        at[s] = e
     cursor = indptr[:-1].copy()
     for jj in range(n):
         j = visit[jj] if visit.shape[0] else jj
         s = rank_of[j]
-        for q in range(up_ptr[s], up_ptr[s + 1]):
-            i = dest[up[q]]
-            if i >= 0:
-                c = cursor[i]
-                if c < indptr[i + 1]:  # never false for a consistent count
-                    indices[c] = j
-                cursor[i] = c + 1
+        for q in range(up_ptr[s], at[s]):
+            i = up[q]
+            c = cursor[i]
+            if c < indptr[i + 1]:  # never false for a consistent count
+                indices[c] = j
+            cursor[i] = c + 1
         for q in range(low_ptr[s], low_ptr[s + 1]):
-            i = dest[low[q]]
+            i = low[q]
             c = cursor[i]
             if c < indptr[i + 1]:
                 indices[c] = j
