@@ -253,6 +253,8 @@ def _fill_pairs(order, rank_of, n_query, indptr, indices, keep, up_ptr, up, visi
             if c < indptr[i + 1]:
                 indices[c] = j
             cursor[i] = c + 1
+    # the passes agree by construction (the fill scatters the pairs the count counted); a
+    # mismatch would be a bug, reported rather than returned as a corrupt list
     for i in range(n_query):
         if cursor[i] != indptr[i + 1]:
             return False
@@ -404,12 +406,11 @@ def build_csr(x, n_query, radius, active=None, near=None, visit=None):
         if active.shape != (n,):
             raise ValueError(f"active must have one flag per row ({n},), got {active.shape}")
     order, rank_of, xs, grid = _binned(x, lo3, hi3, extent, radius)
-    # running counts over the slots (cell order): the active slots (and below, the slots
-    # whose rows keep a list) in any range of cells; and the cells near such slots (dense
-    # grid: two cells each way for the count, within reach for the fill): a row elsewhere
-    # is not searched (the dry walls and the type-I solids of a coupled scene, about half
-    # its rows, had cost a pruned range search each in both passes: the lists of the 3D
-    # tank of jobs/bench_memory.py, 112,761 particles, took 87 ms, then 78)
+    # the running count of the active slots over the slots (cell order), and the cells
+    # within two cells of them: a row elsewhere is not searched (the dry walls and the
+    # type-I solids of a coupled scene, about half its rows, had cost a pruned range
+    # search each: the lists of the 3D tank of jobs/bench_memory.py, 112,761 particles,
+    # took 87 ms, then 78)
     act_s = np.zeros(0, dtype=np.int32)
     near_cells = np.zeros(0, dtype=np.uint8)
     if active is not None:
