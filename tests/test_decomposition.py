@@ -247,18 +247,25 @@ def test_imbalance(comm):
 
 
 # ----------------------------------------------------------------------- migrate
-def test_migrate_conserves_rows_and_lands_on_owner(comm):
-    n, dim = 503, 3
-    X = np.random.default_rng(9).random((n, dim))
+def _migration_case(comm, n, dim, seed, split_seed):
+    """n random points in the unit box, shuffled over the ranks, their RCB, and the
+    fields ``x``, ``id`` (global row), ``src`` (this rank) and ``local`` (local row)."""
+    X = np.random.default_rng(seed).random((n, dim))
     box = Box((0.0,) * dim, (1.0,) * dim, (False,) * dim)
-    loc = _split(comm, n, "shuffled", seed=4)
+    loc = _split(comm, n, "shuffled", seed=split_seed)
     rcb = RCB.build(comm, X[loc], box)
     fields = {"x": X[loc], "id": loc.astype(np.int64),
-              "F": loc[:, None, None] * np.ones((1, dim, dim)),
-              "phase": (loc % 3).astype(np.uint8), "flag": loc % 2 == 0,
               "src": np.full(len(loc), comm.rank, dtype=np.int32),
-              "local": np.arange(len(loc), dtype=np.int64),
-              "empty": np.zeros((len(loc), 0))}
+              "local": np.arange(len(loc), dtype=np.int64)}
+    return X, loc, rcb, fields
+
+
+def test_migrate_conserves_rows_and_lands_on_owner(comm):
+    n, dim = 503, 3
+    X, loc, rcb, fields = _migration_case(comm, n, dim, seed=9, split_seed=4)
+    fields.update({"F": loc[:, None, None] * np.ones((1, dim, dim)),
+                   "phase": (loc % 3).astype(np.uint8), "flag": loc % 2 == 0,
+                   "empty": np.zeros((len(loc), 0))})
     out = migrate(comm, fields, rcb.owner(X[loc]))
     assert list(out) == list(fields)
     for name, a in out.items():
@@ -280,13 +287,7 @@ def test_migrate_puts_the_rows_flagged_last_after_the_others(comm):
     flag on some ranks only is refused on every rank. One rank: nothing moves, and the
     rows stay as they are."""
     n, dim = 401, 2
-    X = np.random.default_rng(12).random((n, dim))
-    box = Box((0.0,) * dim, (1.0,) * dim, (False,) * dim)
-    loc = _split(comm, n, "shuffled", seed=5)
-    rcb = RCB.build(comm, X[loc], box)
-    fields = {"x": X[loc], "id": loc.astype(np.int64),
-              "src": np.full(len(loc), comm.rank, dtype=np.int32),
-              "local": np.arange(len(loc), dtype=np.int64)}
+    X, loc, rcb, fields = _migration_case(comm, n, dim, seed=12, split_seed=5)
     wall = loc % 4 == 1
     plain = migrate(comm, fields, rcb.owner(X[loc]))
     out = migrate(comm, fields, rcb.owner(X[loc]), last=wall)
