@@ -322,14 +322,11 @@ def run_splishsplash(py, work, tag, scene, end, threads, n):
         sys.exit(f"{what}: its {RESULT_TAG.strip()} line is not JSON: {text[:500]!r}")
     if res["method"] != 3:
         sys.exit(f"{what}: simulationMethod is {res['method']}, not 3 (IISPH): check --peer-set")
-    if res["steps"] < 2:
-        sys.exit(f"{what}: {res['steps']} step(s) to t = {res['t']:.4g} s; its time is taken "
-                 f"from steps 2..N: give a longer --end-time")
     if res["outside"]:
         print(f"# warning: {res['outside']} SPlisHSPlasH fluid particles left the box "
               f"(lower its cflFactor: --peer-set cflFactor=0.1)", file=sys.stderr, flush=True)
     steps = res["steps"]
-    run_s = res["later_steps_s"] * steps / (steps - 1)
+    run_s = steps_2_to_n(res["later_steps_s"], steps, f"{what}, to t = {res['t']:.4g} s")
     return dict(code="splishsplash", cores=threads, fluid=res["fluid"],
                 particles=res["fluid"] + res["boundary_particles"], steps=steps,
                 t_end=res["t"], run_s=run_s, process_s=wall,
@@ -351,10 +348,17 @@ def steps_time(stats_csv):
     column of its stats.csv (read with the csv module: no MPI library is loaded here)."""
     with open(stats_csv, newline="") as fh:
         ends = [float(r["elapsed_s"]) for r in csv.DictReader(fh)]
-    if len(ends) < 2:
-        sys.exit(f"{stats_csv}: {len(ends)} step(s); its time is taken from steps 2..N: give "
-                 f"a longer --end-time")
-    return (ends[-1] - ends[0]) * len(ends) / (len(ends) - 1)
+    return steps_2_to_n(ends[-1] - ends[0] if ends else 0.0, len(ends), stats_csv)
+
+
+def steps_2_to_n(span, steps, what):
+    """Both codes' rule: the ``steps`` steps at the mean cost of steps 2..N, from ``span``,
+    the wall time from the end of step 1 to the end of the last (s); exits naming
+    ``what`` if there are fewer than two steps."""
+    if steps < 2:
+        sys.exit(f"{what}: {steps} step(s); its time is taken from steps 2..N: give a longer "
+                 f"--end-time")
+    return span * steps / (steps - 1)
 
 
 def read_parsph(res):
