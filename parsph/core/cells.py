@@ -133,7 +133,7 @@ def _sort_dense(x, lo, inv_cell, ncell):
     at the peak of a step's neighbour search).
 
     Returns ``order`` (slot -> row), ``rank_of`` (row -> slot), ``xs`` (padded
-    positions in slot order) and ``start`` (``ncells + 1``): the slots of linear cell
+    positions in slot order, shape (N, 3) in column order) and ``start`` (``ncells + 1``): the slots of linear cell
     ``c`` are ``start[c]:start[c + 1]``.
     """
     n, dim = x.shape
@@ -154,7 +154,7 @@ def _sort_dense(x, lo, inv_cell, ncell):
         start[c + 1] += start[c]
     order = np.empty(n, dtype=np.int32)
     rank_of = np.empty(n, dtype=np.int32)
-    xs = np.zeros((n, 3))
+    xs = np.zeros((3, n)).T  # column order: a range's distance test vectorises (_count)
     for i in range(n):
         c = cid[i]
         s = start[c]  # start[c] is the cursor of cell c here, restored below
@@ -187,7 +187,9 @@ def _sort_sparse(xp, cc):
     cell_start = np.append(first, n).astype(np.int64)
     rank_of = np.empty(n, dtype=np.int32)
     rank_of[order] = np.arange(n, dtype=np.int32)
-    xs = np.ascontiguousarray(xp[order])
+    xs = np.empty((3, n)).T  # in column order, as _sort_dense's
+    for a in range(3):
+        xs[:, a] = xp[order, a]
     return order.astype(np.int32), rank_of, xs, cells, cell_start
 
 

@@ -68,12 +68,12 @@ _GATHER_DISORDER = 0.08
 
 @njit(cache=True, error_model="numpy")
 def _count(xs, order, n_query, r2max, lo, inv_cell, ncell, reach, sparse, start, cells,
-           cell_start, indptr, act_s, near_cells, keep, up_ptr, up):
+           cell_start, indptr, act, near_cells, keep, up_ptr, up):
     """First pass, every slot in order, each pair once (from its lower slot): ``indptr``
     from the neighbour counts.
 
-    ``act_s`` (the running count of active slots, ``act_s[t]`` active slots before slot
-    ``t``; empty: every row active): a query row that is not active keeps its list
+    ``act`` (one flag per slot, 1 if its row is active; empty: every row active): a
+    query row that is not active keeps its list
     (``keep[i] = 1``) only when an active row is among its neighbours, and
     gets an empty one otherwise. A pair is tested once, from its lower slot, and counted
     at both ends (with the active rows among each end's neighbours): the full search
@@ -86,7 +86,11 @@ def _count(xs, order, n_query, r2max, lo, inv_cell, ncell, reach, sparse, start,
     With ``up_ptr`` of length N + 1 (empty: not recorded) the upper ends of each slot's
     pairs are recorded too: those of slot ``s`` are ``up[up_ptr[s]:up_ptr[s + 1]]``
     (slots, in the order found); ``up`` grows as needed and is returned (the same array
-    if it did not)."""
+    if it did not).
+
+    ``xs`` is best in column order (:func:`parsph.core.cells._binned`'s): the distance
+    test of a range of slots is then one vector loop, apart from the loop that keeps the
+    hits."""
     n = xs.shape[0]
     record = up_ptr.shape[0] > 0
     # the hits of a slot go to ``up`` (recorded) or to a scratch array (not)
@@ -95,9 +99,11 @@ def _count(xs, order, n_query, r2max, lo, inv_cell, ncell, reach, sparse, start,
     w = 2 * reach + 1
     rng = np.empty((w * w, 2), dtype=np.int64)
     gap2 = np.empty((3, w))
-    cnt = np.zeros(n, dtype=np.int32)
-    masked = act_s.shape[0] > 0
-    wet = np.zeros(n if masked else 0, dtype=np.int32)  # active neighbours of each slot
+    masked = act.shape[0] > 0
+    # per slot: its neighbours in the low 32 bits, its active neighbours above them (one
+    # update a hit where two arrays had two)
+    cw = np.zeros(n, dtype=np.int64)
+    hit = np.empty(64, dtype=np.uint8)
     for s in range(n):
         if record:
             up_ptr[s] = pos
@@ -111,33 +117,42 @@ def _count(xs, order, n_query, r2max, lo, inv_cell, ncell, reach, sparse, start,
             need += max(rng[k, 1] - max(rng[k, 0], s + 1), 0)
         if need > buf.shape[0]:
             buf = _grown(buf, p0, need)
+        if need - p0 > hit.shape[0]:
+            hit = np.empty(2 * (need - p0), dtype=np.uint8)
         x0 = xs[s, 0]
         x1 = xs[s, 1]
         x2 = xs[s, 2]
-        # branch-free: every candidate written, the hits kept, then the hits counted (a
-        # hit is one candidate in four or five, and a branch on it was mispredicted: the
-        # count of the 3D dam break of jobs/bench_splishsplash.py took 22.4 ms, now 16.9)
+        # each range's test in one vector loop, then its hits kept branch-free (every
+        # candidate written, the position advanced by the test): a branch on the test (one
+        # candidate in four or five is a hit) was mispredicted, and the test and the write
+        # in one loop did not vectorise. The count of the 3D dam break of
+        # jobs/bench_splishsplash.py took 22.4 ms with the branch, 17.5 in one loop, 12.4
         q = p0
         for k in range(nr):
-            for t in range(max(rng[k, 0], s + 1), rng[k, 1]):
-                d0 = xs[t, 0] - x0
-                d1 = xs[t, 1] - x1
-                d2 = xs[t, 2] - x2
-                buf[q] = t
-                q += d0 * d0 + d1 * d1 + d2 * d2 < r2max
+            a = max(rng[k, 0], s + 1)
+            length = rng[k, 1] - a
+            if length <= 0:
+                continue
+            for e in range(length):
+                d0 = xs[a + e, 0] - x0
+                d1 = xs[a + e, 1] - x1
+                d2 = xs[a + e, 2] - x2
+                hit[e] = d0 * d0 + d1 * d1 + d2 * d2 < r2max
+            for e in range(length):
+                buf[q] = a + e
+                q += hit[e]
         if masked:
-            a_s = act_s[s + 1] - act_s[s]
-            wv = 0
+            inc = 1 + (np.int64(act[s]) << 32)
+            wv = np.int64(0)
             for e in range(p0, q):
                 t = buf[e]
-                cnt[t] += 1
-                wv += act_s[t + 1] - act_s[t]
-                wet[t] += a_s
-            wet[s] += wv
+                cw[t] += inc
+                wv += act[t]
+            cw[s] += wv << 32
         else:
             for e in range(p0, q):
-                cnt[buf[e]] += 1
-        cnt[s] += q - p0
+                cw[buf[e]] += 1
+        cw[s] += q - p0
         if record:
             pos = q
     if record:
@@ -146,9 +161,9 @@ def _count(xs, order, n_query, r2max, lo, inv_cell, ncell, reach, sparse, start,
         i = order[s]
         if i >= n_query:
             continue
-        k = 1 if not masked or act_s[s + 1] > act_s[s] or wet[s] > 0 else 0
+        k = 1 if not masked or act[s] or (cw[s] >> 32) > 0 else 0
         keep[i] = k
-        indptr[i + 1] = cnt[s] if k else 0
+        indptr[i + 1] = (cw[s] & 0xFFFFFFFF) if k else 0
     indptr[0] = 0
     for i in range(n_query):
         indptr[i + 1] += indptr[i]
@@ -326,13 +341,6 @@ def _disorder(order):
     return acc / max(n - 1, 1) / max(n, 1)
 
 
-def _running_count(flags):
-    """``out[t]`` = the number of nonzero ``flags`` before index ``t`` (length N + 1)."""
-    out = np.zeros(len(flags) + 1, dtype=np.int32)  # (rows are fewer than 2**31)
-    np.cumsum(flags != 0, out=out[1:])
-    return out
-
-
 # --------------------------------------------------------------------------- public
 
 
@@ -406,15 +414,15 @@ def build_csr(x, n_query, radius, active=None, near=None, visit=None):
         if active.shape != (n,):
             raise ValueError(f"active must have one flag per row ({n},), got {active.shape}")
     order, rank_of, xs, grid = _binned(x, lo3, hi3, extent, radius)
-    # the running count of the active slots over the slots (cell order), and the cells
+    # the active flags of the slots (cell order), and the cells
     # within two cells of them: a row elsewhere is not searched (the dry walls and the
     # type-I solids of a coupled scene, about half its rows, had cost a pruned range
     # search each: the lists of the 3D tank of jobs/bench_memory.py, 112,761 particles,
     # took 87 ms, then 78)
-    act_s = np.zeros(0, dtype=np.int32)
+    act = np.zeros(0, dtype=np.uint8)
     near_cells = np.zeros(0, dtype=np.uint8)
     if active is not None:
-        act_s = _running_count(active[order])
+        act = (active[order] != 0).view(np.uint8)
         ncell, reach, sparse, start = grid[2:6]
         near_cells = reachable_cells(active[order], ncell, 2 * reach, sparse, start)
         if near is not None:
@@ -429,9 +437,8 @@ def build_csr(x, n_query, radius, active=None, near=None, visit=None):
     up = np.empty(0 if gather else _upper_pairs_estimate(xs, r2max, *grid, near_cells, 32),
                   dtype=np.int32)
     keep = np.zeros(n_query, dtype=np.uint8)
-    up = _count(xs, order, n_query, r2max, *grid, indptr, act_s, near_cells, keep, up_ptr,
-                up)
-    act_s = near_cells = None  # (not held beside the lists)
+    up = _count(xs, order, n_query, r2max, *grid, indptr, act, near_cells, keep, up_ptr, up)
+    act = near_cells = None  # (not held beside the lists)
     indices = np.empty(int(indptr[-1]), dtype=np.int32)
     if gather:
         place = np.zeros(0, dtype=np.int64)
