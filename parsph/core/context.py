@@ -115,6 +115,9 @@ class Context:
     def update_halo(self, names) -> None:
         """Refresh the halo rows of the named fields from their owners (same pattern)."""
         p = self.particles
+        if self.halo.n_send == 0 and self.halo.n_halo == 0 and p.n_halo == 0:
+            return  # nothing moves (one rank, no periodic images): 9 calls had cost 69 us
+            # of a 2D coupled step of 1,100 particles (jobs/bench_overhead.py)
         fresh = self.halo.exchange(p.owned_fields(names), shift_fields=("x", "X"))
         for name, rows in fresh.items():
             p[name][p.n_owned:] = rows

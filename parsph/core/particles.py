@@ -7,7 +7,10 @@ is global and stable for a particle's life.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
 
 #: Fields every particle has: name -> (trailing shape as a function of dim, dtype).
 CORE_FIELDS = {
@@ -23,6 +26,29 @@ CORE_FIELDS = {
 
 #: The phase codes of the ``phase`` field (section 3.3: a solid becomes a fluid).
 PHASE_SOLID, PHASE_FLUID, PHASE_WALL = 0, 1, 2
+
+
+def max_speed(v, n, flags=None, value=1) -> float:
+    """The largest speed |v| (m/s) of the first ``n`` rows of ``v`` whose ``flags`` equal
+    ``value`` (all of them without ``flags``); 0 if there are none. One pass, no
+    temporaries: a CFL limit (eq. (49)) is taken every step by each stage, and the numpy
+    form had cost 20-30 us each in a 2D coupled step of 1,100 particles."""
+    if flags is None:
+        return _max_speed(v, n, np.zeros(0, dtype=np.uint8), 0)
+    return _max_speed(v, n, flags, value)
+
+
+@njit(cache=True, error_model="numpy")
+def _max_speed(v, n, flags, value):
+    every = flags.shape[0] == 0
+    top = 0.0
+    for i in range(n):
+        if every or flags[i] == value:
+            s = 0.0
+            for k in range(v.shape[1]):
+                s += v[i, k] * v[i, k]
+            top = max(top, s)
+    return math.sqrt(top)
 
 
 class ParticleSet:

@@ -30,6 +30,7 @@ import numpy as np
 
 from decomposition.reduce import global_max, global_reduce, global_sum
 from parsph.coupling.view import VIEW_FIELDS, SolidView
+from parsph.core.particles import max_speed
 from parsph.scene.materials import PHASE_FLUID, PHASE_SOLID
 
 #: Fields the TLSPH step changes on solid rows (copied back to the main set each step).
@@ -192,8 +193,7 @@ class Coupled:
         if not self._fluid_any:
             return self._dt_solid
         dt = self.fluid.max_dt(ctx)
-        v = self.view.ctx.particles["v"][: self.view.n]
-        vmax = global_max(ctx.comm, float(np.sqrt((v * v).sum(axis=1).max())) if len(v) else 0.0)
+        vmax = global_max(ctx.comm, max_speed(self.view.ctx.particles["v"], self.view.n))
         if vmax > 0.0:
             dt = min(dt, self.fluid.num.cfl * ctx.d / vmax)
         return min(dt, ctx.scene.solid.max_substeps * self._dt_solid)

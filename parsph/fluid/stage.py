@@ -37,6 +37,7 @@ from decomposition.reduce import global_any, global_max, global_min, global_redu
 from parsph.fluid import assembly, response, rheology, viscous
 from parsph.fluid.ppe import ppe_csr
 from parsph.core.contact import wall_contact
+from parsph.core.particles import max_speed
 from parsph.fluid.walls import system_rows, wall_slip
 from parsph.scene.materials import PHASE_FLUID, PHASE_WALL
 from solvers.csr import scale_rows, sort_neighbours_by_row
@@ -222,10 +223,7 @@ class IISPH:
         """Eq. (49): ``cfl d / v_max`` over the fluid, with a floor on v_max (see FluidNumerics)."""
         p = ctx.particles
         n = ctx.n_owned
-        fluid = p["phase"][:n] == PHASE_FLUID
-        v = p["v"][:n][fluid]
-        vmax = float(np.sqrt((v * v).sum(axis=1).max())) if len(v) else 0.0
-        vmax = global_max(ctx.comm, vmax)
+        vmax = global_max(ctx.comm, max_speed(p["v"], n, p["phase"], PHASE_FLUID))
         g = float(np.linalg.norm(ctx.body_acceleration(ctx.time)))
         vmax = max(vmax, self.num.velocity_floor * math.sqrt(g * ctx.d))
         dt = self.num.cfl * ctx.d / vmax if vmax > 0 else math.inf

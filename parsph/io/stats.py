@@ -115,8 +115,8 @@ class StatsWriter:
         ValueError
             If ``row`` has keys that are not columns (checked on every rank).
         """
-        unknown = [k for k in row if k not in self._known]
-        if unknown:
+        if not self._known.issuperset(row):
+            unknown = [k for k in row if k not in self._known]
             raise ValueError(f"stats row has unknown columns {unknown}; the columns of "
                              f"{self.path} are {self.columns} — add them when creating the "
                              "StatsWriter")

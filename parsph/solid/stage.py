@@ -30,6 +30,7 @@ from parsph.errors import NumericalError
 from parsph.scene.materials import PHASE_SOLID
 from parsph.solid import kernels
 from parsph.core.contact import wall_contact
+from parsph.core.particles import max_speed
 from parsph.solid.boundary import initial_velocity, velocity_masks
 from parsph.solid.update import CAM_CLAY, C, elastic_energy, material_table, stress_terms, \
     update_particles, wave_speed
@@ -145,8 +146,7 @@ class TLSPH:
         """CFL limit of eq. (49), solid part: ``C d / (c_p + |v|_max)``."""
         p = ctx.particles
         n = p.n_owned
-        v = p["v"][:n][self.sel[:n]]
-        vmax = float(np.sqrt((v * v).sum(axis=1).max())) if len(v) else 0.0
+        vmax = max_speed(p["v"], n, self.sel, True)
         speed = self.max_wave_speed(ctx) + global_max(ctx.comm, vmax)
         return self.num.cfl * ctx.d / speed if speed > 0 else math.inf
 
