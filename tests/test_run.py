@@ -117,3 +117,46 @@ def test_only_the_stages_a_scene_needs_are_imported(tmp_path, name, overrides, f
                             "PMIX_", "OPAL_", "PRTE_", "HYDRA_", "PMI_"))})
     assert r.returncode == 0, r.stderr
     assert r.stdout.strip().splitlines()[-1] == "[]"
+
+
+def test_state_check_names_the_first_fault():
+    """check_state's one pass: a non-finite position before a non-finite velocity, then a
+    position outside the closed box on a non-periodic axis only, the first such row."""
+    from parsph.step.refresh import _first_fault
+    rng = np.random.default_rng(3)
+    x, v = rng.uniform(0.1, 0.9, (8, 2)), rng.normal(size=(8, 2))
+    lo, hi, per = np.zeros(2), np.ones(2), np.array([0, 1], dtype=np.uint8)
+    assert _first_fault(x, v, 8, lo, hi, per) == (0, 0)
+    x[6, 1] = 1.5  # beyond hi on the periodic axis: not a fault
+    assert _first_fault(x, v, 8, lo, hi, per) == (0, 0)
+    x[5, 0], x[4, 0] = -0.1, 1.0  # the closed box holds hi itself
+    assert _first_fault(x, v, 8, lo, hi, per) == (3, 5)
+    v[3, 1] = np.inf
+    assert _first_fault(x, v, 8, lo, hi, per) == (2, 3)
+    x[7, 0] = np.nan
+    assert _first_fault(x, v, 8, lo, hi, per) == (1, 7)
+    assert _first_fault(x, v, 3, lo, hi, per) == (0, 0)  # rows past n are not looked at
+
+
+def test_stats_sums_and_cfl_speed_agree_with_numpy():
+    """The stats row's one-pass sums (counts, kinetic energy, mass, front, top speed of
+    the moving rows) and the stages' CFL speed, against the numpy formulas."""
+    from parsph.core.particles import max_speed
+    from parsph.step.stats import _row_sums
+    rng = np.random.default_rng(5)
+    n, dim = 200, 3
+    phase = rng.integers(0, 3, n + 7).astype(np.int8)
+    v, x, m = rng.normal(size=(n + 7, dim)), rng.normal(size=(n + 7, dim)), rng.uniform(1, 2, n + 7)
+    e = np.array([0.6, 0.0, 0.8])
+    got = _row_sums(phase, v, m, x, n, e)
+    moving = phase[:n] != 2
+    speed2 = (v[:n] ** 2).sum(axis=1)
+    want = (n, (phase[:n] == 0).sum(), (phase[:n] == 1).sum(), (phase[:n] == 2).sum(),
+            0.5 * (m[:n] * speed2)[moving].sum(), m[:n][moving].sum(),
+            (x[:n] @ e)[moving].max(), speed2[moving].max())
+    assert np.allclose(got, want, rtol=1e-13, atol=0.0)
+    assert _row_sums(np.full(n, 2, np.int8), v, m, x, n, e)[6] == -np.inf  # nothing moves
+    assert max_speed(v, n) == np.sqrt(speed2.max())
+    assert max_speed(v, n, phase, 1) == np.sqrt(speed2[phase[:n] == 1].max())
+    assert max_speed(v, n, phase[:n] == 0, True) == np.sqrt(speed2[phase[:n] == 0].max())
+    assert max_speed(v, n, np.zeros(n, np.int8), 1) == 0.0
