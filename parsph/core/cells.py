@@ -133,8 +133,8 @@ def _sort_dense(x, lo, inv_cell, ncell):
     at the peak of a step's neighbour search).
 
     Returns ``order`` (slot -> row), ``rank_of`` (row -> slot), ``xs`` (padded
-    positions in slot order, shape (N, 3) in column order) and ``start`` (``ncells + 1``): the slots of linear cell
-    ``c`` are ``start[c]:start[c + 1]``.
+    positions in slot order, shape (N, 3) in column order) and ``start`` (``ncells +
+    1``): the slots of linear cell ``c`` are ``start[c]:start[c + 1]``.
     """
     n, dim = x.shape
     off = 3 - dim

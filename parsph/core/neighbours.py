@@ -73,15 +73,15 @@ def _count(xs, order, n_query, r2max, lo, inv_cell, ncell, reach, sparse, start,
     from the neighbour counts.
 
     ``act`` (one flag per slot, 1 if its row is active; empty: every row active): a
-    query row that is not active keeps its list
-    (``keep[i] = 1``) only when an active row is among its neighbours, and
-    gets an empty one otherwise. A pair is tested once, from its lower slot, and counted
-    at both ends (with the active rows among each end's neighbours): the full search
-    from both ends had cost 26 ms where this costs 20 (the 3D tank of
-    ``jobs/bench_memory.py``, 112,761 particles). Every slot is the lower end of some
-    pairs, halo rows too; one in a cell that ``near_cells`` (:func:`reachable_cells` of
-    the active slots, two cells each way; empty: not known) leaves out is farther than
-    two radii from every active row, so none of its pairs has an end with a list.
+    query row that is not active keeps its list (``keep[i] = 1``) only when an active
+    row is among its neighbours, and gets an empty one otherwise. A pair is tested once,
+    from its lower slot, and counted at both ends (with the active rows among each end's
+    neighbours): the full search from both ends had cost 26 ms where this costs 20 (the
+    3D tank of ``jobs/bench_memory.py``, 112,761 particles). Every slot is the lower end
+    of some pairs, halo rows too; one in a cell that ``near_cells``
+    (:func:`reachable_cells` of the active slots, two cells each way; empty: not known)
+    leaves out is farther than two radii from every active row, so none of its pairs has
+    an end with a list.
 
     With ``up_ptr`` of length N + 1 (empty: not recorded) the upper ends of each slot's
     pairs are recorded too: those of slot ``s`` are ``up[up_ptr[s]:up_ptr[s + 1]]``
@@ -414,11 +414,10 @@ def build_csr(x, n_query, radius, active=None, near=None, visit=None):
         if active.shape != (n,):
             raise ValueError(f"active must have one flag per row ({n},), got {active.shape}")
     order, rank_of, xs, grid = _binned(x, lo3, hi3, extent, radius)
-    # the active flags of the slots (cell order), and the cells
-    # within two cells of them: a row elsewhere is not searched (the dry walls and the
-    # type-I solids of a coupled scene, about half its rows, had cost a pruned range
-    # search each: the lists of the 3D tank of jobs/bench_memory.py, 112,761 particles,
-    # took 87 ms, then 78)
+    # the active flags of the slots (cell order), and the cells within two cells of them:
+    # a row elsewhere is not searched (the dry walls and the type-I solids of a coupled
+    # scene, about half its rows, had cost a pruned range search each: the lists of the
+    # 3D tank of jobs/bench_memory.py, 112,761 particles, took 87 ms, then 78)
     act = np.zeros(0, dtype=np.uint8)
     near_cells = np.zeros(0, dtype=np.uint8)
     if active is not None:
