@@ -118,14 +118,22 @@ class Box:
         ndarray of bool, shape ``x.shape[:-1]``
         """
         x = self._check(x)
-        out = np.zeros(x.shape[:-1], dtype=bool)
-        for axis in range(self.dim):
-            c = x[..., axis]
-            if self.periodic[axis]:
-                out |= ~np.isfinite(c)
-            else:
-                out |= ~((c >= self.lo[axis]) & (c <= self.hi[axis]))
-        return out
+        flat = np.ascontiguousarray(x.reshape(-1, self.dim))
+        out = np.zeros(flat.shape[0], dtype=bool)
+        _outside(flat, *self._bounds(), out, False)
+        return out.reshape(x.shape[:-1])
+
+    def first_outside(self, x) -> int:
+        """Index of the first row of ``x`` (shape (N, dim), m) that :meth:`outside` flags,
+        -1 if none: one pass that stops there (the step's state check)."""
+        x = self._check(x)
+        if x.ndim != 2:
+            raise ValueError(f"Box.first_outside: pass an (N, {self.dim}) array, got {x.shape}")
+        return int(_outside(x, *self._bounds(), np.zeros(0, dtype=bool), True))
+
+    def _bounds(self):
+        return (np.asarray(self.lo), np.asarray(self.hi),
+                np.asarray(self.periodic, dtype=np.uint8))
 
     def image_shifts(self) -> np.ndarray:
         """Offsets (m) of the periodic images of a point, the zero shift first.
@@ -183,3 +191,24 @@ def masked_bounds(x, mask):
                 lo[a] = min(lo[a], x[i, a])
                 hi[a] = max(hi[a], x[i, a])
     return lo, hi
+
+
+@njit(cache=True, error_model="numpy")
+def _outside(x, lo, hi, periodic, out, first):
+    """The rule of :meth:`Box.outside` for the rows of ``x``: a non-finite coordinate, or
+    one beyond ``[lo, hi]`` on a non-periodic axis. Writes ``out`` (unless ``first``);
+    returns the first such row, -1 if none (with ``first`` it stops there)."""
+    found = -1
+    for i in range(x.shape[0]):
+        bad = False
+        for k in range(x.shape[1]):
+            c = x[i, k]
+            if not np.isfinite(c) or (not periodic[k] and not (lo[k] <= c <= hi[k])):
+                bad = True
+        if bad:
+            if found < 0:
+                found = i
+            if first:
+                return found
+            out[i] = True
+    return found

@@ -122,20 +122,23 @@ def test_only_the_stages_a_scene_needs_are_imported(tmp_path, name, overrides, f
 def test_state_check_names_the_first_fault():
     """check_state's one pass: a non-finite position before a non-finite velocity, then a
     position outside the closed box on a non-periodic axis only, the first such row."""
-    from parsph.step.refresh import _first_fault
+    from decomposition.box import Box
+    from parsph.step.refresh import _first_non_finite
     rng = np.random.default_rng(3)
     x, v = rng.uniform(0.1, 0.9, (8, 2)), rng.normal(size=(8, 2))
-    lo, hi, per = np.zeros(2), np.ones(2), np.array([0, 1], dtype=np.uint8)
-    assert _first_fault(x, v, 8, lo, hi, per) == (0, 0)
+    box = Box(lo=(0.0, 0.0), hi=(1.0, 1.0), periodic=(False, True))
+    assert _first_non_finite(x, v, 8) == (0, 0) and box.first_outside(x) == -1
     x[6, 1] = 1.5  # beyond hi on the periodic axis: not a fault
-    assert _first_fault(x, v, 8, lo, hi, per) == (0, 0)
+    assert box.first_outside(x) == -1
     x[5, 0], x[4, 0] = -0.1, 1.0  # the closed box holds hi itself
-    assert _first_fault(x, v, 8, lo, hi, per) == (3, 5)
+    assert box.first_outside(x) == 5
+    assert np.array_equal(box.outside(x), np.arange(8) == 5)  # the same rule, as a mask
     v[3, 1] = np.inf
-    assert _first_fault(x, v, 8, lo, hi, per) == (2, 3)
+    assert _first_non_finite(x, v, 8) == (2, 3)
     x[7, 0] = np.nan
-    assert _first_fault(x, v, 8, lo, hi, per) == (1, 7)
-    assert _first_fault(x, v, 3, lo, hi, per) == (0, 0)  # rows past n are not looked at
+    assert _first_non_finite(x, v, 8) == (1, 7)
+    assert box.first_outside(x) == 5 and box.outside(x)[7]  # NaN is outside too
+    assert _first_non_finite(x, v, 3) == (0, 0)  # rows past n are not looked at
 
 
 def test_stats_sums_and_cfl_speed_agree_with_numpy():

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from decomposition.reduce import global_max
+from parsph.core.particles import max_speed
 from parsph.scene.materials import PHASE_WALL
 
 
@@ -20,9 +21,7 @@ class Kinematics:
     def max_dt(self, ctx) -> float:
         """CFL limit of eq. (49), fluid part: C d / |v|_max."""
         p = ctx.particles
-        v = p["v"][: p.n_owned]
-        vmax = float(np.sqrt((v * v).sum(axis=1).max())) if len(v) else 0.0
-        vmax = global_max(ctx.comm, vmax)
+        vmax = global_max(ctx.comm, max_speed(p["v"], p.n_owned))
         return self.cfl * ctx.d / vmax if vmax > 0 else np.inf
 
     def step(self, ctx, dt: float) -> None:

@@ -27,22 +27,18 @@ def timed(ctx, name, fn, *args):
 
 
 @njit(cache=True, error_model="numpy")
-def _first_fault(x, v, n, lo, hi, periodic):
-    """``(kind, i)`` of the first fault among the first ``n`` rows: 1 a non-finite
-    position, 2 (none of those) a non-finite velocity, 3 (neither) a position outside the
-    closed box on a non-periodic axis (:meth:`decomposition.box.Box.outside`); ``(0, 0)``
-    if none. One pass each, no temporaries: the numpy form of these checks had cost
-    57 us of a 2D coupled step of 1,100 particles (jobs/bench_overhead.py)."""
+def _first_non_finite(x, v, n):
+    """``(kind, i)``: the first of the first ``n`` rows with a non-finite position (kind
+    1), else with a non-finite velocity (2); ``(0, 0)`` if none. One pass each, no
+    temporaries: with the box test (:meth:`decomposition.box.Box.first_outside`) the
+    numpy form had cost 57 us of a 2D coupled step of 1,100 particles
+    (jobs/bench_overhead.py)."""
     for name in range(2):
         a = x if name == 0 else v
         for i in range(n):
             for k in range(a.shape[1]):
                 if not np.isfinite(a[i, k]):
                     return name + 1, i
-    for i in range(n):
-        for k in range(x.shape[1]):
-            if not periodic[k] and not (lo[k] <= x[i, k] <= hi[k]):
-                return 3, i
     return 0, 0
 
 
@@ -50,10 +46,10 @@ def check_state(ctx) -> None:
     """Collective: stop every rank with one message on NaN/inf or a particle out of the box."""
     p = ctx.particles
     n = p.n_owned
-    box = ctx.box
-    kind, i = _first_fault(p["x"], p["v"], n, np.asarray(box.lo, dtype=np.float64),
-                           np.asarray(box.hi, dtype=np.float64),
-                           np.asarray(box.periodic, dtype=np.uint8))
+    kind, i = _first_non_finite(p["x"], p["v"], n)
+    if kind == 0:
+        i = ctx.box.first_outside(p["x"][:n])
+        kind = 3 if i >= 0 else 0
     error = None
     if kind in (1, 2):
         error = NumericalError(
