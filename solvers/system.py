@@ -98,6 +98,11 @@ class LinearSystem(MatrixAssembly):
         More BoomerAMG defaults of this system, e.g. ``{"pc_hypre_boomeramg_agg_nl":
         "1"}`` (without the prefix), set like the smoother's: options given in the
         database win.
+    pc_side : str, optional
+        ``"left"`` (PETSc's default: the KSP tests the preconditioned residual) or
+        ``"right"``: it tests the true residual ``b - A x``, whose norm an ``atol`` in the
+        equation's own units can bound (the PPE's density error, docs/iisph.md); the
+        options database wins (``-{prefix}ksp_pc_side``).
 
     Attributes
     ----------
@@ -155,6 +160,7 @@ class LinearSystem(MatrixAssembly):
         symmetric: bool | None = None,
         reuse_preconditioner: int = 1,
         hypre_options: dict | None = None,
+        pc_side: str = "left",
     ):
         PETSc = petsc_env.petsc()
         self._PETSc = PETSc
@@ -183,7 +189,7 @@ class LinearSystem(MatrixAssembly):
         self._held = None  # the caller's arrays a matrix is built over (assemble_csr_over)
         self._pmat = None  # a sparser matrix BoomerAMG was set up on (assemble_csr_over)
         self._ksp = self._create_ksp(ksp_type, pc_type, rtol, atol, max_it,
-                                     {**_HYPRE_DEFAULTS, **(hypre_options or {})})
+                                     {**_HYPRE_DEFAULTS, **(hypre_options or {})}, pc_side)
 
     # -- set-up ---------------------------------------------------------------------
 
@@ -255,8 +261,10 @@ class LinearSystem(MatrixAssembly):
         pc.setHYPREType("boomeramg")
         pc.setFromOptions()
 
-    def _create_ksp(self, ksp_type, pc_type, rtol, atol, max_it, hypre_defaults):
+    def _create_ksp(self, ksp_type, pc_type, rtol, atol, max_it, hypre_defaults, pc_side):
         """Defaults in code, then the options prefix, then ``setFromOptions``."""
+        if pc_side not in ("left", "right"):
+            raise ValueError(f"{self.prefix}: pc_side is 'left' or 'right', got {pc_side!r}")
         PETSc = self._PETSc
         ksp = PETSc.KSP().create(comm=self.comm)
         ksp.setType(ksp_type)
@@ -279,6 +287,8 @@ class LinearSystem(MatrixAssembly):
                 if not opts.hasName(self.prefix + key):
                     opts.setValue(self.prefix + key, value)
         ksp.setTolerances(rtol=rtol, atol=atol, max_it=max_it)
+        if pc_side == "right":
+            ksp.setPCSide(PETSc.PC.Side.RIGHT)
         ksp.setOptionsPrefix(self.prefix)
         ksp.setFromOptions()
         return ksp

@@ -260,6 +260,33 @@ def test_initial_guess_is_used(comm):
         np.testing.assert_array_equal(x_again, x)
 
 
+def test_right_preconditioned_solve_stops_at_an_absolute_true_residual(comm):
+    """pc_side="right": the KSP tests the true residual, so an atol in the equation's
+    units bounds ||b - A x|| (the PPE's density-error tolerance); the left side's test
+    is on the preconditioned residual. A bad side is refused before any work."""
+    n = 32
+    full = full_matrix(n * n, poisson_triplets(n, np.arange(n * n)))
+    b = rhs_of(n * n)
+    for side, atol in (("right", 1e-3), ("right", 1e-6), ("left", 1e-50)):
+        system = LinearSystem(comm, "tst_", block_rows(comm, n * n), ksp_type="gmres",
+                              rtol=1e-12, atol=atol, pc_side=side)
+        with system:
+            first, stop = system.owned_range
+            system.assemble(*poisson_triplets(n, np.arange(first, stop)))
+            x, info = system.solve(b[first:stop])
+            whole = np.concatenate(comm.allgather(x))
+            true = np.linalg.norm(b - full @ whole)
+            if side == "right":
+                assert info["reason_name"] == "CONVERGED_ATOL"
+                assert true <= atol * (1 + 1e-6)
+                assert info["residual_norm"] == pytest.approx(true, rel=1e-6)
+            else:
+                assert info["reason_name"] == "CONVERGED_RTOL"
+                assert info["residual_norm"] != pytest.approx(true, rel=1e-2)
+    with pytest.raises(ValueError, match="pc_side is 'left' or 'right'"):
+        LinearSystem(comm, "tst_", 4, pc_side="up")
+
+
 def test_constant_nullspace_neumann(comm):
     n = 16
     total = n * n
