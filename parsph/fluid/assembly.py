@@ -167,7 +167,7 @@ def rows_in_order(row, n, first):
     """The owned particles of the system in the order of their rows: ``order[r]`` is the
     particle of global row ``first + r``. The stage numbers the owned rows
     ``first, first + 1, ...`` in whatever order it likes (wall rows after the fluid's,
-    see ``IISPH._row_order``); the CSR kernels write them in that order."""
+    see ``walls.row_order``); the CSR kernels write them in that order."""
     count = 0
     for i in range(n):
         if row[i] >= 0:

@@ -33,10 +33,11 @@ import math
 import numpy as np
 from numba import njit
 
+from decomposition.reduce import global_reduce
 from parsph.core.kernel import constants, delta, fac_grad_k
 from parsph.fluid.assembly import _vec, rows_in_order
 
-__all__ = ["ppe_csr", "ppe_row_scale"]
+__all__ = ["density_error_factor", "ppe_csr", "ppe_row_scale"]
 
 
 def ppe_row_scale(rho, rho0, d):
@@ -47,6 +48,40 @@ def ppe_row_scale(rho, rho0, d):
     order one (like the wall and free-surface rows) and the diagonal is positive.
     """
     return rho * d * d / (2.0 * rho0)
+
+
+def density_error_factor(comm, scale, rho, interior, n_fluid, dt, d) -> float:
+    r"""Collective: the factor :math:`c` for which :math:`c\,\|\tilde r\|_2` bounds the
+    RMS relative density error that the pressure leaves over the fluid rows, where
+    :math:`\tilde r` is the residual of the solved system (0 if there is no interior fluid
+    row anywhere).
+
+    The unscaled residual :math:`R_i` of eq. (32) is a density rate per unit time
+    (kg m^-3 s^-2, like :math:`\alpha(\rho_0 - \rho_i)/\Delta t^2`): the density change
+    the step's pressure leaves unbalanced is :math:`\delta\rho_i = \Delta t^2 R_i`, the
+    quantity whose mean IISPH's iteration bounds (Ihmsen et al. 2014). The solved row is
+    eq. (32) times :math:`s_i` (:func:`ppe_row_scale`) times ``scale_i`` (to a unit
+    diagonal: ``1 / D_i``), so
+
+    .. math::
+
+        \frac{\delta\rho_i}{\rho_{0i}} = \frac{2 \Delta t^2}{d^2}
+        \frac{D_i}{\rho_i} \tilde r_i, \qquad
+        \sqrt{\frac{1}{N}\sum_{i \in \text{fluid}}
+        \Big(\frac{\delta\rho_i}{\rho_{0i}}\Big)^2}
+        \le \frac{2 \Delta t^2}{d^2} \max_i \frac{D_i}{\rho_i}
+        \frac{\|\tilde r\|_2}{\sqrt N}
+
+    with the maximum over the interior fluid rows (``interior``, in row order like
+    ``scale`` and ``rho``) and :math:`N` the fluid rows of all ranks (``n_fluid`` here;
+    a free-surface row's density is not constrained, its error counts as 0, as in the
+    mean over all fluid particles of SPlisHSPlasH). Every other row's residual (wall,
+    solid, free-surface rows) is in :math:`\|\tilde r\|_2` too: a bound, never an
+    underestimate.
+    """
+    w = float(np.max(1.0 / (scale[interior] * rho[interior]))) if interior.any() else 0.0
+    (n,), (w,), _ = global_reduce(comm, sums=(n_fluid,), maxs=(w,))
+    return 2.0 * dt * dt * w / (d * d * math.sqrt(n)) if n > 0 and w > 0 else 0.0
 
 
 @njit(cache=True, error_model="numpy")

@@ -35,10 +35,10 @@ import numpy as np
 from decomposition.numbering import global_offset
 from decomposition.reduce import global_any, global_max, global_min, global_reduce, global_sum
 from parsph.fluid import assembly, response, rheology, viscous
-from parsph.fluid.ppe import ppe_csr
+from parsph.fluid.ppe import density_error_factor, ppe_csr
 from parsph.core.contact import wall_contact
 from parsph.core.particles import max_speed
-from parsph.fluid.walls import system_rows, wall_slip
+from parsph.fluid.walls import row_order, system_rows, wall_slip
 from parsph.scene.materials import PHASE_FLUID, PHASE_WALL
 from solvers.csr import scale_rows, sort_neighbours_by_row
 
@@ -54,8 +54,8 @@ PPE_HYPRE_OPTIONS = {"pc_hypre_boomeramg_agg_nl": "1", "pc_hypre_boomeramg_coars
                      "pc_hypre_boomeramg_interp_type": "ext+i", "pc_hypre_boomeramg_P_max": "4"}
 
 STATS = ("viscous_number", "visc_iterations", "visc_residual", "ppe_iterations", "ppe_residual",
-         "ppe_setup", "n_free_surface", "fluid_contacts", "max_divergence", "density_work",
-         "wall_s_fluid_assembly", "wall_s_fluid_solve", "wall_s_visc_solve", "wall_s_ppe_solve",
+         "ppe_density_error", "ppe_setup", "n_free_surface", "fluid_contacts", "max_divergence",
+         "density_work", "wall_s_fluid_assembly", "wall_s_fluid_solve", "wall_s_visc_solve", "wall_s_ppe_solve",
          "wall_s_fluid_halo")
 
 
@@ -169,9 +169,11 @@ class IISPH:
             self.destroy()
             tol = dict(max_it=self.num.max_it)
             # PPE: cheaper V-cycles and set-ups with PPE_HYPRE_OPTIONS (docs/solvers.md)
+            # a density-error tolerance bounds the true residual: preconditioned on the right
             self._ppe = LinearSystem(ctx.comm, "ppe_", n, ksp_type="gmres", rtol=self.num.ppe_rtol,
                                      reuse_preconditioner=self.num.preconditioner_reuse,
-                                     hypre_options=PPE_HYPRE_OPTIONS, **tol)
+                                     hypre_options=PPE_HYPRE_OPTIONS, **tol, pc_side="right"
+                                     if self.num.ppe_density_error > 0 else "left")
             # viscous: afresh every step (a lagged set-up: the slope demo's solves 43 % slower)
             if self.num.viscous_operator == "matrix_free":
                 from solvers import OperatorSystem
@@ -188,19 +190,6 @@ class IISPH:
     def renew_preconditioners(self) -> None:
         """The PPE's next assembly sets its preconditioner up afresh."""
         self._ppe_ids = None
-
-    @staticmethod
-    def _row_order(act, wall) -> np.ndarray:
-        """The owned particles of the systems (``act``) in the order of their rows: fluid
-        and solid rows first, then the wall rows, each in particle order.
-
-        BoomerAMG's Gauss-Seidel smoother and its coarsening depend on the row order. A
-        wall row only extrapolates the fluid's pressure (Adami et al. 2012); swept after
-        the fluid rows it takes their new values. Numbered in particle order instead, the
-        walls a rank received with its particles fall between fluid rows: on 2 ranks the
-        2.0e5-particle dam break took 12 PPE iterations where 1 rank took 10; with the
-        walls last both take 10 (docs/solvers.md)."""
-        return np.concatenate((np.flatnonzero(act & ~wall), np.flatnonzero(act & wall)))
 
     def _same_ppe_rows(self, ids) -> bool:
         """Whether the PPE's rows are the particles ``ids`` of its last assembly (then its
@@ -356,8 +345,8 @@ class IISPH:
         # walls the fluid can reach before the next sync step (walls.system_rows)
         is_wall = p["phase"][:n] == PHASE_WALL
         act = system_rows(ctx, fluid, is_wall)
-        # the rows in order: fluid and solid rows, then the walls (see _row_order)
-        order = self._row_order(act, is_wall)
+        # the rows in order: fluid and solid rows, then the walls (walls.row_order)
+        order = row_order(act, is_wall)
         n_act = len(order)
         ppe, visc = self._systems(ctx, n_act)
         offset, _ = global_offset(ctx.comm, n_act)
@@ -470,6 +459,12 @@ class IISPH:
             scale_rows(near[0], near[2][:n_near], scale)
             ppe.set_product(*blocks, near=(near[0], near[1][:n_near], near[2][:n_near]),
                             row_scale=scale)
+        inner = own_fluid & (free[:n] == 0)
+        eta = self.num.ppe_density_error  # as the KSP's atol (density_error_factor)
+        err = density_error_factor(ctx.comm, scale, rho[:n][order], inner[order],
+                                   int(own_fluid.sum()), dt, d) if eta > 0 else math.nan
+        if eta > 0:
+            ppe.ksp.setTolerances(atol=eta / err if err > 0 else 1e-50)
         t_asm += time.perf_counter() - t0
         pres, info_p = ppe.solve(rhs[order] * scale, x0=p["p_ppe"][:n][order])
         p["p_ppe"][:n][order] = pres
@@ -482,7 +477,6 @@ class IISPH:
         # the work the density term of eq. (32) lets the pressure do: it asks a compressed
         # particle to expand by alpha (rho - rho0) / rho0 in the step, which a projection
         # without it would not (a source of kinetic energy, counted in energy_bound)
-        inner = own_fluid & (free[:n] == 0)
         drho = rho[:n] - rho0[:n] if expansion else np.maximum(rho[:n] - rho0[:n], 0.0)
         work = alpha * p["p"][:n] * m[:n] / rho[:n] * drho / rho0[:n]
         density_work = float(np.maximum(work[inner], 0.0).sum())
@@ -568,6 +562,7 @@ class IISPH:
             "visc_residual": info_v["residual_norm"],
             "ppe_iterations": info_p["iterations"],
             "ppe_residual": info_p["residual_norm"],
+            "ppe_density_error": err * info_p["residual_norm"],
             "ppe_setup": int(info_p["fresh_setup"]),
             "n_free_surface": int(n_free),
             "fluid_contacts": int(n_contacts),

@@ -107,6 +107,11 @@ class FluidNumerics:
                                          "corrector (Koshizuka & Oka 1996)")
     ppe_rtol: float = spec(1e-8, doc="relative tolerance of the pressure solve (ppe_ksp_rtol)",
                            gt=0.0, lt=1.0)
+    ppe_density_error: float = spec(0.0, doc="the pressure solve also stops once the RMS "
+                                    "density error its residual leaves is at most this, "
+                                    "relative to rho0 (IISPH's eta, e.g. 1e-4 = 0.01 %; "
+                                    "SPlisHSPlasH stops at a mean of 0.01 %); 0: ppe_rtol "
+                                    "alone (docs/iisph.md)", ge=0.0, lt=1.0)
     visc_rtol: float = spec(1e-8, doc="relative tolerance of the viscous predictor solve "
                             "(visc_ksp_rtol)", gt=0.0, lt=1.0)
     max_it: int = spec(500, doc="maximum Krylov iterations of either solve", gt=0)
