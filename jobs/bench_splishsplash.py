@@ -7,7 +7,11 @@ d = a / n, centres at (k + 1/2) d in both codes) with
 
 - parsph (``parsph run`` of the 3D scene this job writes into its work directory: the
   ``dam_break`` scene with ``dim = 3``, a ``tank`` wall of 3 layers on the left, right,
-  front, back and bottom; GMRES + BoomerAMG on the PPE) on ``--ranks`` ranks, and
+  front, back and bottom; GMRES + BoomerAMG on the PPE) on ``--ranks`` ranks, once per
+  PPE tolerance of ``--density-error``: by default at SPlisHSPlasH's own (``peer``: its
+  ``IISPH.maxError`` as ``fluid.ppe_density_error``, which parsph applies to the RMS
+  density error, a stricter norm than SPlisHSPlasH's mean) and at ``0`` (parsph's
+  default, ``fluid.ppe_rtol`` = 1e-8 alone), and
 - SPlisHSPlasH 2.19 (``pysplishsplash`` from PyPI; C++ with OpenMP, float32): IISPH
   (``simulationMethod`` 3, relaxed Jacobi to ``IISPH.maxError`` = 0.01 % mean density
   error, 2-100 sweeps), standard CFL step with ``cflFactor`` 0.25, standard viscosity
@@ -18,8 +22,9 @@ d = a / n, centres at (k + 1/2) d in both codes) with
   particles); on ``--threads`` OpenMP threads (default one),
 
 alternately, ``--repeats`` times each (noise between identical runs reaches 25 %), and
-prints one row per code and core count (medians): fluid and total particles, steps, run
-wall time, fluid particle-steps/s per core, pressure iterations per step, the front (the
+prints one row per code, core count and tolerance (medians): fluid and total particles,
+steps, run wall time, fluid particle-steps/s per core, pressure iterations per step, the
+largest density error parsph's solves left (``density_error_max``, relative), the front (the
 largest x of a fluid particle, m) at the end, and the ratios parsph / SPlisHSPlasH of the
 cost of a fluid particle-step on one core (``ratio_vs_splishsplash``; below 1: parsph is
 cheaper) and of the core-seconds to the end time (``core_time_ratio_vs_splishsplash``;
@@ -50,6 +55,7 @@ import csv
 import ctypes.util
 import glob
 import json
+import math
 import os
 import shutil
 import statistics
@@ -249,6 +255,24 @@ def splishsplash_scene(n: int, boundary: str, mesh: str, overrides=()) -> dict:
     }
 
 
+def density_errors(text: str, iisph: dict) -> list:
+    """parsph's PPE tolerances of ``--density-error`` (``fluid.ppe_density_error``, a
+    relative density error): numbers, ``peer`` for SPlisHSPlasH's ``maxError`` (a
+    percentage, so / 100), 0 for ``fluid.ppe_rtol`` alone."""
+    out = []
+    for item in text.split(","):
+        item = item.strip()
+        try:
+            eta = float(iisph["maxError"]) / 100.0 if item == "peer" else float(item)
+        except (TypeError, ValueError):
+            sys.exit(f"--density-error {text!r}: give numbers in [0, 1), or 'peer', separated "
+                     f"by commas (e.g. peer,1e-6,0)")
+        if not 0.0 <= eta < 1.0:
+            sys.exit(f"--density-error {text!r}: {eta:g} is not in [0, 1)")
+        out.append(eta)
+    return out
+
+
 def cost_ratio(parsph_rate: float, peer_rate: float) -> float:
     """parsph's cost of a fluid particle-step on one core over SPlisHSPlasH's, from their
     fluid particle-steps/s per core (below 1: parsph is cheaper)."""
@@ -371,6 +395,7 @@ def read_parsph(res):
     res.update(particles=int(stats["n_particles"][0]), fluid=int(stats["n_fluid"][0]),
                pressure_iterations=float(np.median(stats["ppe_iterations"])),
                pressure_iterations_max=int(np.max(stats["ppe_iterations"])),
+               density_error_max=float(np.max(stats["ppe_density_error"])),
                front=float(stats["front"][-1]))
     return res
 
@@ -393,6 +418,10 @@ def main():
                     help="extra parsph scene override (e.g. fluid.cfl=0.2)")
     ap.add_argument("--peer-set", action="append", default=[], metavar="KEY=VALUE",
                     help="SPlisHSPlasH Configuration override (e.g. IISPH.maxError=0.1)")
+    ap.add_argument("--density-error", default="peer,0", metavar="ETA,...",
+                    help="parsph's PPE tolerances, one run each: fluid.ppe_density_error "
+                         "(relative RMS density error; 'peer': SPlisHSPlasH's IISPH.maxError "
+                         "/ 100; 0: fluid.ppe_rtol alone, parsph's default)")
     ap.add_argument("--splishsplash-venv", default=os.path.join(
         tempfile.gettempdir(), "parsph-peers", "splishsplash"))
     ap.add_argument("--venv-python", default="python3",
@@ -409,6 +438,7 @@ def main():
         fh.write(SPLISHSPLASH_SCRIPT)
     shutil.copy(mesh, os.path.join(work, "UnitBox.obj"))
     peer_scene = splishsplash_scene(n, args.boundary, "UnitBox.obj", args.peer_set)
+    etas = density_errors(args.density_error, peer_scene["Configuration"]["IISPH"])
     scene = os.path.join(work, "dam_break_3d.toml")
     with open(scene, "w") as fh:
         fh.write(parsph_scene(n, args.end_time))
@@ -417,18 +447,24 @@ def main():
     run_parsph(ranks[0], scene, os.path.join(work, "warm-up"), [*args.set, "run.max_steps=4"])
     samples = {}
     for rep in range(args.repeats):
-        for code, c in [("splishsplash", args.threads)] + [("parsph", r) for r in ranks]:
+        for code, c, eta in [("splishsplash", args.threads, math.nan)] + [
+                ("parsph", r, e) for r in ranks for e in etas]:
             res = (run_splishsplash(py, work, rep, peer_scene, args.end_time, args.threads, n)
                    if code == "splishsplash" else
-                   run_parsph(c, scene, os.path.join(work, f"parsph_{c}_{rep}"), args.set))
-            samples.setdefault((code, c), []).append(res)
-            print(f"# {code} cores={c} run {rep + 1}: {res['run_s']:.4g} s, {res['steps']} "
-                  f"steps to t = {res['t_end']:.4g} s", file=sys.stderr, flush=True)
+                   run_parsph(c, scene, os.path.join(work, f"parsph_{c}_{eta:g}_{rep}"),
+                              [*args.set, f"fluid.ppe_density_error={eta!r}"]))
+            samples.setdefault((code, c, eta), []).append(res)
+            print(f"# {code} cores={c}{'' if math.isnan(eta) else f' eta={eta:g}'} run "
+                  f"{rep + 1}: {res['run_s']:.4g} s, {res['steps']} steps to t = "
+                  f"{res['t_end']:.4g} s", file=sys.stderr, flush=True)
     rows = []
-    for (code, c), runs in samples.items():
+    for (code, c, eta), runs in samples.items():
         first = read_parsph(runs[0]) if code == "parsph" else runs[0]
         run_s = statistics.median(x["run_s"] for x in runs)
-        rows.append({"code": code, "cores": c, "fluid": first["fluid"],
+        rows.append({"code": code, "cores": c,  # SPlisHSPlasH: its mean's tolerance
+                     "ppe_density_error": eta if code == "parsph" else density_errors(
+                         "peer", peer_scene["Configuration"]["IISPH"])[0],
+                     "fluid": first["fluid"],
                      "particles": first["particles"], "steps": first["steps"],
                      "t_end": first["t_end"], "run_s": run_s,
                      "process_s": statistics.median(x["process_s"] for x in runs),
@@ -438,9 +474,10 @@ def main():
                          first["fluid"] * first["steps"] / run_s / c,
                      "pressure_iterations": first["pressure_iterations"],
                      "pressure_iterations_max": first["pressure_iterations_max"],
+                     "density_error_max": first.get("density_error_max", math.nan),
                      "front": first["front"]})
     ref = next(x for x in rows if x["code"] == "splishsplash")
-    info = samples[("splishsplash", args.threads)][0]["info"]
+    info = samples[("splishsplash", args.threads, math.nan)][0]["info"]
     for row in rows:
         row["ratio_vs_splishsplash"] = cost_ratio(row["fluid_particle_steps_per_s_per_core"],
                                                   ref["fluid_particle_steps_per_s_per_core"])
@@ -458,7 +495,9 @@ def main():
           f"particles; parsph walls: {WALL_LAYERS} layers), end time {args.end_time} s; "
           f"medians of {args.repeats} alternating run(s); load average {load:.2f} at start")
     print("# pressure_iterations: parsph median GMRES iterations of the PPE, SPlisHSPlasH "
-          "mean Jacobi sweeps; ratio_vs_splishsplash: cost of a fluid particle-step per core")
+          "mean Jacobi sweeps; ratio_vs_splishsplash: cost of a fluid particle-step per core; "
+          "ppe_density_error: parsph's tolerance (0: ppe_rtol alone), density_error_max: the "
+          "largest RMS density error its solves left (nan: not measured at ppe_rtol alone)")
     writer = csv.DictWriter(sys.stdout, list(rows[0]))
     writer.writeheader()
     writer.writerows([{k: (f"{v:.4g}" if isinstance(v, float) else v) for k, v in r.items()}

@@ -63,6 +63,19 @@ def test_splishsplash_times_parsph_over_steps_2_to_n_as_the_peer(tmp_path):
         steps_time(str(path))
 
 
+def test_splishsplash_density_errors_read_the_peers_tolerance():
+    """jobs/bench_splishsplash.py --density-error: 'peer' is SPlisHSPlasH's maxError (a
+    percentage) as a fraction, 0 is parsph's rtol alone; anything else is refused."""
+    from bench_splishsplash import density_errors, splishsplash_scene
+
+    iisph = splishsplash_scene(5, "akinci2012", "UnitBox.obj")["Configuration"]["IISPH"]
+    assert density_errors("peer,1e-6,0", iisph) == [pytest.approx(1e-4), 1e-6, 0.0]
+    assert density_errors("peer", {"maxError": 0.1}) == [pytest.approx(1e-3)]
+    for bad in ("1", "-1e-4", "tight", "peer,,0"):
+        with pytest.raises(SystemExit, match="--density-error"):
+            density_errors(bad, iisph)
+
+
 def test_overhead_fit_recovers_the_fixed_cost_and_the_slope():
     """jobs/bench_overhead.py: the intercept of s/step against particles is the fixed cost."""
     from bench_overhead import fit
