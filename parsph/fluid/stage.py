@@ -55,8 +55,8 @@ PPE_HYPRE_OPTIONS = {"pc_hypre_boomeramg_agg_nl": "1", "pc_hypre_boomeramg_coars
 
 STATS = ("viscous_number", "visc_iterations", "visc_residual", "ppe_iterations", "ppe_residual",
          "ppe_density_error", "ppe_setup", "n_free_surface", "fluid_contacts", "max_divergence",
-         "density_work", "wall_s_fluid_assembly", "wall_s_fluid_solve", "wall_s_visc_solve", "wall_s_ppe_solve",
-         "wall_s_fluid_halo")
+         "density_work", "wall_s_fluid_assembly", "wall_s_fluid_solve", "wall_s_visc_solve",
+         "wall_s_ppe_solve", "wall_s_fluid_halo")
 
 
 def lattice_density_ratio(h_over_d: float, dim: int) -> float:

@@ -2,7 +2,8 @@
 
 Every particle carries ``body``, the index of the body or wall it was generated from in
 ``scene.bodies + scene.walls`` (walls after the bodies); a wall particle's slip is the
-``slip`` key of its wall. :func:`system_rows` picks the rows of the step's systems, :func:`row_order` orders them.
+``slip`` key of its wall. :func:`system_rows` picks the rows of the step's systems and
+:func:`row_order` numbers them.
 """
 from __future__ import annotations
 
