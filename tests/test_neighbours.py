@@ -98,16 +98,22 @@ def test_equals_brute_force(case):
     check_against_brute_force(x, n_query, radius)
 
 
+@pytest.mark.parametrize("direct", [True, False])
 @SETTINGS
 @given(point_sets())
-def test_cross_search_is_the_target_part_of_build_csr(case):
+def test_cross_search_is_the_target_part_of_build_csr(direct, case):
     """``build_cross_csr(x[:k], x[k:])``: each query's neighbours among the targets only,
     the same pairs (and order) as the full search's lists restricted to the targets; on
-    every kind of set (duplicates, ties at the radius, huge boxes, lines)."""
-    from parsph.core.cross import build_cross_csr
+    every kind of set (duplicates, ties at the radius, huge boxes, lines), by the direct
+    loop of small sets and by the cell search alike."""
+    from parsph.core import cross
 
     x, k, radius = case
-    indptr, indices = build_cross_csr(x[:k], x[k:], radius)
+    saved, cross.DIRECT_PAIRS = cross.DIRECT_PAIRS, (1 << 62 if direct else -1)
+    try:
+        indptr, indices = cross.build_cross_csr(x[:k], x[k:], radius)
+    finally:
+        cross.DIRECT_PAIRS = saved
     ref_ptr, ref_idx = brute_force(x, k, radius)
     assert indptr.dtype == np.int64 and indices.dtype == np.int32
     assert indptr.shape == (k + 1,)

@@ -120,3 +120,39 @@ def wall_contact(x, v, rows, vrows, wall, vw, indptr, indices, h, d, dim, mu, pu
             for a in range(dim):  # the tangential part only
                 v[i, a] -= (1.0 - fac) * (vr[a] - vn * nv[a])
     return count
+
+
+@njit(cache=True, error_model="numpy")
+def solid_wall_set(x, rows, indptr, indices, xw, mu_solid, mu_wall):
+    """The point set :func:`wall_contact` takes for the solids ``rows`` (rows of ``x``)
+    and the walls ``xw`` near them, from their cross lists (``indptr``, ``indices`` into
+    ``xw``, :func:`parsph.core.cross.build_cross_csr`), in one pass where numpy's took 60
+    of a 2D coupled step's 1.2 ms of fixed cost.
+
+    Only the solids with a wall in reach are kept. Returns ``(kept, indptr, indices,
+    xall, wall, mu, mu_w)``: the kept rows, their lists into ``xall`` (the kept solids,
+    then the walls), the wall flag and the friction coefficients of ``xall``'s points
+    (``mu_solid`` for each kept solid, ``mu_wall`` per wall).
+    """
+    nq, nw, dim = rows.shape[0], xw.shape[0], x.shape[1]
+    nr = 0
+    for i in range(nq):
+        nr += indptr[i + 1] > indptr[i]
+    kept = np.empty(nr, dtype=np.int64)
+    ptr = np.zeros(nr + 1, dtype=np.int64)
+    xall = np.empty((nr + nw, dim))
+    k = 0
+    for i in range(nq):
+        if indptr[i + 1] > indptr[i]:
+            kept[k] = rows[i]
+            ptr[k + 1] = ptr[k] + indptr[i + 1] - indptr[i]
+            xall[k] = x[rows[i]]
+            k += 1
+    xall[nr:] = xw
+    shifted = indices + np.int32(nr)  # a solid without walls had no entries
+    wall = np.zeros(nr + nw, dtype=np.uint8)
+    wall[nr:] = 1
+    mu_w = np.zeros(nr + nw)
+    mu_w[nr:] = mu_wall
+    return kept, ptr, shifted, xall, wall, np.full(nr, mu_solid), mu_w
+

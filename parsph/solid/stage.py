@@ -29,7 +29,7 @@ from decomposition.reduce import global_max, global_sum
 from parsph.errors import NumericalError
 from parsph.scene.materials import PHASE_SOLID
 from parsph.solid import kernels
-from parsph.core.contact import wall_contact
+from parsph.core.contact import solid_wall_set, wall_contact
 from parsph.core.particles import max_speed
 from parsph.solid.boundary import initial_velocity, velocity_masks
 from parsph.solid.update import CAM_CLAY, C, elastic_energy, material_table, stress_terms, \
@@ -249,17 +249,9 @@ class TLSPH:
             # none: the contact had cost 16 ms of a 0.48 s 3D tank step, 5 of them on rows
             # with empty lists)
             indptr, indices = build_cross_csr(p["x"][:n][rows], xw, ctx.radius)
-            lengths = np.diff(indptr)
-            touch = lengths > 0
-            rows = rows[touch]
-            indptr = np.concatenate([[0], np.cumsum(lengths[touch])])
-            xall = np.concatenate([p["x"][:n][rows], xw])
-            indices += np.int32(len(rows))  # into xall: the walls after the solids
-            wall = np.zeros(len(xall), dtype=np.uint8)
-            wall[len(rows):] = 1
-            mu = np.full(len(rows), self.num.wall_friction)
-            mu_w = np.zeros(len(xall))
-            mu_w[len(rows):] = self.wall_friction[near["body"] - len(ctx.scene.bodies)]
+            rows, indptr, indices, xall, wall, mu, mu_w = solid_wall_set(
+                p["x"], rows, indptr, indices, xw, self.num.wall_friction,
+                self.wall_friction[near["body"] - len(ctx.scene.bodies)])
             push = np.zeros((len(rows), ctx.dim))
             still = np.zeros_like(xall)  # fixed walls
             count = wall_contact(xall, p["v"], np.arange(len(rows)), rows, wall, still, indptr,
