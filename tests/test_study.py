@@ -48,6 +48,24 @@ def test_study_writes_table_and_plot(comm, mpi_tmp_path):
         study(comm, path, out, {"particle_size": [0.1]}, overrides=["run.mode=geometry"])
 
 
+def test_study_of_a_dotted_key_gives_it_a_column(comm, mpi_tmp_path):
+    """--vary of any dotted scene key (fluid.ppe_density_error, ...): study.csv, the
+    table and the plot's labels name its value, after ksp_rtol."""
+    from parsph.cli.study import point_labels
+
+    path = write_shared(comm, mpi_tmp_path, MOVING_2D)
+    out = os.path.join(mpi_tmp_path, "study_key")
+    rows = study(comm, path, out, {"output.every": [0.1, 0.05]},
+                 overrides=["run.end_time=0.2", "domain.particle_size=0.1"])
+    assert [r["output.every"] for r in rows] == [0.1, 0.05]
+    assert point_labels(rows) == ["every=0.1", "every=0.05"]
+    if comm.rank == 0:
+        with open(os.path.join(out, "study.csv")) as fh:
+            table = list(csv.DictReader(fh))
+        assert list(table[0])[:4] == ["particle_size", "cfl", "ksp_rtol", "output.every"]
+        assert [float(r["output.every"]) for r in table] == [0.1, 0.05]
+
+
 def test_plot_labels_name_the_settings_that_vary():
     """study.png labels each point with what the study varied, not always d."""
     from parsph.cli.study import point_labels

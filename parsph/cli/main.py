@@ -72,15 +72,18 @@ def _parser() -> _Parser:
 
 
 def cmd_study(comm, args, petsc) -> int:
-    from parsph.cli.study import convergence_order, parse_vary, study
+    from parsph.cli.study import convergence_order, extra_columns, parse_vary, study
 
     rows = study(comm, args.scene, args.out, parse_vary(args.vary), args.overrides, petsc)
     if comm.rank == 0:
-        print(f"{'particle_size':>14s} {'cfl':>8s} {'ksp_rtol':>9s} {'steps':>7s} "
-              f"{'wall_s':>9s} {'error':>10s}")
+        extra = extra_columns(rows[0] if rows else [])
+        print(f"{'particle_size':>14s} {'cfl':>8s} {'ksp_rtol':>9s} "
+              + "".join(f"{k:>{max(len(k), 9)}s} " for k in extra)
+              + f"{'steps':>7s} {'wall_s':>9s} {'error':>10s}")
         for r in rows:
             print(f"{r['particle_size']:14.4g} {r['cfl']:8.3g} {r['ksp_rtol']:9.2g} "
-                  f"{r['steps']:7d} {r['wall_s']:9.3f} {r['error']:10.3e}")
+                  + "".join(f"{r[k]:>{max(len(k), 9)}.3g} " for k in extra)
+                  + f"{r['steps']:7d} {r['wall_s']:9.3f} {r['error']:10.3e}")
         order = convergence_order([r["particle_size"] for r in rows], [r["error"] for r in rows])
         print(f"observed order of convergence in the particle size: {order:.2f}")
         print(f"wrote {os.path.join(args.out, 'study.csv')} and "

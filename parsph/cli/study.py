@@ -156,24 +156,40 @@ def study(comm, scene_name: str, out: str, vary: dict | None = None, overrides=(
                 row[name] = _current(scene, _key_for(scene, name))
             except ParsphError:
                 row[name] = float("nan")
+        for name in extra_columns(names):  # any other varied key: a column of its own
+            row[name] = _current(scene, keys[name])
         rows.append(row)
     if comm.rank == 0:
         _write(out, rows)
     return broadcast(comm, rows)
 
 
+def extra_columns(names) -> list[str]:
+    """The varied names that are not among :data:`COLUMNS` (dotted scene keys, e.g.
+    ``fluid.ppe_density_error``): study.csv and the table get a column for each."""
+    return [n for n in names if n not in COLUMNS]
+
+
+def table_columns(rows: list) -> list[str]:
+    """The columns of study.csv: :data:`COLUMNS` with the varied dotted keys after
+    ``ksp_rtol``."""
+    return COLUMNS[:3] + extra_columns(rows[0] if rows else []) + COLUMNS[3:]
+
+
 def _write(out: str, rows: list) -> None:
+    columns = table_columns(rows)
     with open(os.path.join(out, "study.csv"), "w", newline="") as fh:
-        w = csv.DictWriter(fh, COLUMNS)
+        w = csv.DictWriter(fh, columns)
         w.writeheader()
         for r in rows:
-            w.writerow({k: r[k] for k in COLUMNS})
+            w.writerow({k: r[k] for k in columns})
     plot(rows, os.path.join(out, "study.png"))
 
 
 def point_labels(rows: list) -> list[str]:
     """A label per run of the settings that vary over the study (``d`` if none does)."""
     short = {"particle_size": "d", "cfl": "cfl", "ksp_rtol": "rtol"}
+    short.update({k: k.rsplit(".", 1)[-1] for k in extra_columns(rows[0] if rows else [])})
     varied = [k for k in short if len({repr(r[k]) for r in rows}) > 1] or ["particle_size"]
     return [", ".join(f"{short[k]}={r[k]:.3g}" for k in varied) for r in rows]
 
