@@ -438,7 +438,8 @@ def main():
         fh.write(SPLISHSPLASH_SCRIPT)
     shutil.copy(mesh, os.path.join(work, "UnitBox.obj"))
     peer_scene = splishsplash_scene(n, args.boundary, "UnitBox.obj", args.peer_set)
-    etas = density_errors(args.density_error, peer_scene["Configuration"]["IISPH"])
+    iisph = peer_scene["Configuration"]["IISPH"]
+    etas, peer_eta = density_errors(args.density_error, iisph), density_errors("peer", iisph)[0]
     scene = os.path.join(work, "dam_break_3d.toml")
     with open(scene, "w") as fh:
         fh.write(parsph_scene(n, args.end_time))
@@ -462,8 +463,7 @@ def main():
         first = read_parsph(runs[0]) if code == "parsph" else runs[0]
         run_s = statistics.median(x["run_s"] for x in runs)
         rows.append({"code": code, "cores": c,  # SPlisHSPlasH: its mean's tolerance
-                     "ppe_density_error": eta if code == "parsph" else density_errors(
-                         "peer", peer_scene["Configuration"]["IISPH"])[0],
+                     "ppe_density_error": eta if code == "parsph" else peer_eta,
                      "fluid": first["fluid"],
                      "particles": first["particles"], "steps": first["steps"],
                      "t_end": first["t_end"], "run_s": run_s,
