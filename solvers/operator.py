@@ -95,7 +95,7 @@ class OperatorSystem(LinearSystem):
                  rtol=1e-8, atol=1e-50, max_it=1000, hypre_options=None):
         super().__init__(comm, prefix, n_local_rows, block_size=block_size,
                          ksp_type=ksp_type, pc_type="none", rtol=rtol, atol=atol,
-                         max_it=max_it, symmetric=False)
+                         max_it=max_it, symmetric=False, pc_side="right")
         PETSc = self._PETSc
         self.scalar = LinearSystem(comm, self.prefix + "amg_", n_local_rows, block_size=1,
                                    ksp_type="preonly", pc_type="hypre", symmetric=False,
@@ -103,7 +103,6 @@ class OperatorSystem(LinearSystem):
         pc = self._ksp.getPC()
         pc.setType(PETSc.PC.Type.PYTHON)
         pc.setPythonContext(_ComponentAMG(self))
-        self._ksp.setPCSide(PETSc.PC.Side.RIGHT)
         self._ksp.setFromOptions()  # the options database still wins
         opts = self._PETSc.Options()
         self._restart = None if self._ksp.getType() != "gmres" or opts.hasName(

@@ -460,10 +460,10 @@ class IISPH:
             ppe.set_product(*blocks, near=(near[0], near[1][:n_near], near[2][:n_near]),
                             row_scale=scale)
         inner = own_fluid & (free[:n] == 0)
-        eta = self.num.ppe_density_error  # as the KSP's atol (density_error_factor)
-        err = density_error_factor(ctx.comm, scale, rho[:n][order], inner[order],
-                                   int(own_fluid.sum()), dt, d) if eta > 0 else math.nan
-        if eta > 0:
+        eta, err = self.num.ppe_density_error, math.nan
+        if eta > 0:  # as the KSP's atol (density_error_factor)
+            err = density_error_factor(ctx.comm, scale, rho[:n][order], inner[order],
+                                       int(own_fluid.sum()), dt, d)
             ppe.ksp.setTolerances(atol=eta / err if err > 0 else 1e-50)
         t_asm += time.perf_counter() - t0
         pres, info_p = ppe.solve(rhs[order] * scale, x0=p["p_ppe"][:n][order])
