@@ -38,13 +38,12 @@ def global_reduce(comm, sums=(), maxs=(), mins=()):
     One ``Allgather`` of the numbers; every rank then reduces the gathered rows in rank
     order (the same result on every rank). A step's statistics take one call instead of
     one ``allreduce`` each."""
+    if comm.size == 1:  # each number is its own reduction (float64, as gathered)
+        return tuple(tuple(float(np.float64(v)) for v in part) for part in (sums, maxs, mins))
     k1, k2 = len(sums), len(sums) + len(maxs)
     mine = np.array([*sums, *maxs, *mins], dtype=np.float64)
-    if comm.size == 1:
-        rows = mine[None, :]
-    else:
-        rows = np.empty((comm.size, mine.size))
-        comm.Allgather(mine, rows)
+    rows = np.empty((comm.size, mine.size))
+    comm.Allgather(mine, rows)
     return (tuple(float(v) for v in rows[:, :k1].sum(axis=0)),
             tuple(float(v) for v in rows[:, k1:k2].max(axis=0, initial=-np.inf)),
             tuple(float(v) for v in rows[:, k2:].min(axis=0, initial=np.inf)))

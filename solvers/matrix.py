@@ -575,7 +575,7 @@ class MatrixAssembly:
 
         n_rows = ptr.shape[0] - 1
         self._drop_product()
-        if self.comm.allreduce(n_rows) == 0:
+        if (n_rows if self.comm.size == 1 else self.comm.allreduce(n_rows)) == 0:
             return
         self._product = ProductOperator(self._PETSc, self.comm, self._mat, n_rows, ptr, cols,
                                         left, right, near, row_scale)

@@ -272,6 +272,32 @@ def test_stats_csv_round_trip(comm, mpi_tmp_path):
         assert read_stats(path)["step"].tolist() == [1.0, 2.0, 3.0]
 
 
+def test_stats_rows_reach_the_file_by_time_flush_or_close(tmp_path):
+    """Rows are buffered for at most ``flush_seconds``; ``flush`` and ``close`` write them;
+    text cells are quoted as the csv module quotes them."""
+    import csv
+
+    from parsph.io import StatsWriter
+
+    path = tmp_path / "stats.csv"
+
+    def rows():
+        with open(path, newline="") as fh:
+            return list(csv.reader(fh))[1:]
+
+    with StatsWriter(path, ["step", "note"], enabled=True, flush_seconds=3600.0) as s:
+        s.write({"step": 1, "note": 'a, "b"'})
+        s.write({"step": 2, "note": "line\nbreak"})
+        assert rows() == []  # within the hour: buffered
+        s.flush()
+        assert rows() == [["1", 'a, "b"'], ["2", "line\nbreak"]]
+        s.write({"step": 3})
+    assert rows()[-1] == ["3", ""]  # closed: written
+    with StatsWriter(path, ["step", "note"], enabled=True, mode="a", flush_seconds=0.0) as s:
+        s.write({"step": 4})
+        assert rows()[-1] == ["4", ""]  # flushed after the row
+
+
 def _serial_run(directory, dim, n_frames=1, n=60, empty=False):
     """Write a small run from one rank (COMM_SELF)."""
     from mpi4py import MPI

@@ -79,6 +79,7 @@ class Context:
     sync_point: bool = False
     #: (names, lo, hi, rows): the last wall lookup of :meth:`nearby_walls` and its box
     wall_cache: tuple = None
+    _g_norm: float = None  # |g|, once (body_acceleration_norm)
 
     @property
     def at_sync_step(self) -> bool:
@@ -171,6 +172,14 @@ class Context:
             return self.gravity
         load = self.scene.loading
         return self.gravity - load.scale * record.at(t - load.start_time)
+
+    def body_acceleration_norm(self, t: float) -> float:
+        """|:meth:`body_acceleration` (t)| (m/s²); without a record, |g| computed once."""
+        if self.scene.data.get("record") is not None:
+            return float(np.linalg.norm(self.body_acceleration(t)))
+        if self._g_norm is None:
+            self._g_norm = float(np.linalg.norm(self.gravity))
+        return self._g_norm
 
     @property
     def gravity(self) -> np.ndarray:

@@ -213,7 +213,7 @@ class IISPH:
         p = ctx.particles
         n = ctx.n_owned
         vmax = global_max(ctx.comm, max_speed(p["v"], n, p["phase"], PHASE_FLUID))
-        g = float(np.linalg.norm(ctx.body_acceleration(ctx.time)))
+        g = ctx.body_acceleration_norm(ctx.time)
         vmax = max(vmax, self.num.velocity_floor * math.sqrt(g * ctx.d))
         dt = self.num.cfl * ctx.d / vmax if vmax > 0 else math.inf
         if self.num.dt_max > 0:
@@ -246,7 +246,7 @@ class IISPH:
         p["nu"][:n] = rheology.viscosity(gamma, p["p"][:n], fluid, p["material"][:n],
                                          self.table, self.les)
         if self.num.numerical_viscosity > 0:  # kappa h sqrt(|g| h), vanishes as h^1.5
-            gnorm = float(np.linalg.norm(ctx.body_acceleration(ctx.time)))
+            gnorm = ctx.body_acceleration_norm(ctx.time)
             p["nu"][:n][fluid == 1] += self.num.numerical_viscosity * h * math.sqrt(gnorm * h)
 
     def _viscous_solve(self, ctx, visc, order, dt, g, morris, m, row, indptr, indices, fluid,

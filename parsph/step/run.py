@@ -325,8 +325,7 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
                 next_frame = _next_time(ctx.time, every)
             probes.sample_due(ctx)
             row = stats_row(ctx, dt, stages)
-            g = max(float(np.linalg.norm(ctx.body_acceleration(t)))
-                    for t in (ctx.time - dt, ctx.time))
+            g = max(ctx.body_acceleration_norm(t) for t in (ctx.time - dt, ctx.time))
             ee = float(row.get("elastic_energy") or 0.0)
             row["energy_bound"], row["energy_ratio"] = energy_budget(
                 last["ke"], row["kinetic_energy"], last["ee"], ee, row.pop("mass"), g, dt,
@@ -337,9 +336,11 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
             bar.update(ctx.time, ctx.step)
             if ctx.time >= next_ck - 1e-9 * ck_every and ctx.at_sync_step:
                 next_ck = _next_time(ctx.time, ck_every)
+                stats.flush()  # a restart from here finds every row up to it
                 write_checkpoint()
             stopping = stopping or global_any(comm, stop.signal is not None)
             if stopping and ctx.at_sync_step:
+                stats.flush()
                 write_checkpoint()
                 _finish(ctx, stages)
                 bar.close()
@@ -348,6 +349,7 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
         if ctx.step != last_frame_step:
             write_frame()
             last_frame_step = ctx.step
+        stats.flush()  # (and for the stages' end-of-run output read from it)
         write_checkpoint()
         _finish(ctx, stages)
     bar.close()
@@ -363,7 +365,7 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
 
 
 def _finish(ctx, stages) -> None:
-    """Stages' end-of-run output (e.g. triaxial.csv from stats.csv, flushed row by row)."""
+    """Stages' end-of-run output (e.g. triaxial.csv from stats.csv, flushed before it)."""
     for s in stages:
         if hasattr(s, "finish"):
             s.finish(ctx)

@@ -2,6 +2,7 @@
 budget), front, speed, each stage's own columns and wall seconds."""
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -69,11 +70,19 @@ def energy_budget(ke0, ke1, ee0, ee1, mass, g, dt, work=0.0) -> tuple[float, flo
     return bound, rise / bound
 
 
+@functools.lru_cache(maxsize=8)
+def _unit(direction: tuple, dim: int) -> np.ndarray:
+    """The unit vector along ``output.front_direction`` (default +x); shared, not to be
+    written to (a read-only array would be another type for numba)."""
+    e = np.asarray(direction or (1.0,) + (0.0,) * (dim - 1), float)
+    return e / np.linalg.norm(e)
+
+
 def stats_row(ctx, dt, stage_objs) -> dict:
     p, comm = ctx.particles, ctx.comm
     n = p.n_owned
-    e = np.asarray(ctx.scene.output.front_direction or (1.0,) + (0.0,) * (ctx.dim - 1), float)
-    sums = _row_sums(p["phase"], p["v"], p["m"], p["x"], n, e / np.linalg.norm(e))
+    sums = _row_sums(p["phase"], p["v"], p["m"], p["x"], n,
+                     _unit(tuple(ctx.scene.output.front_direction), ctx.dim))
     counts, (n_max, front, v2max), (n_min,) = global_reduce(
         comm, sums=sums[:6], mins=(n,), maxs=(n, sums[6], sums[7]))
     n_max, n_min = int(n_max), int(n_min)
