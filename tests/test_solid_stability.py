@@ -162,6 +162,44 @@ def test_block_sliding_on_rough_floor_stops_by_coulomb_friction(comm, mpi_tmp_pa
         assert np.abs(last["v"][:, 1]).max() < 0.5 * v0  # elastic rocking only
 
 
+def test_wall_contact_lists_kept_within_their_skin_give_the_same_slide(comm, mpi_tmp_path,
+                                                                       monkeypatch):
+    """The solids' wall-contact lists are Verlet lists (TLSPH._contact): the block
+    launched along the rough floor slides bit for bit as with lists searched every step
+    (skin 0), and they are searched again only now and then as it slides 2.3 d."""
+    import parsph.solid.stage as stage
+
+    builds = []
+    lists = stage.TLSPH._wall_lists
+
+    def counted(self, ctx, solid):
+        builds.append(ctx.step)
+        return lists(self, ctx, solid)
+
+    monkeypatch.setattr(stage.TLSPH, "_wall_lists", counted)
+    last = {}
+    for skin in (stage.CONTACT_SKIN, 0.0):
+        monkeypatch.setattr(stage, "CONTACT_SKIN", skin)
+        builds.clear()
+        _, last[skin], rows = _run(
+            comm, mpi_tmp_path, f"slide{skin}", 0.0125, [-0.6, -0.3], [1.1, 0.4], 0.08, 0.04,
+            G_2D, hencky(1000.0, 1.0e6), ([0.0, 0.0], [0.2, 0.1]), solid={"wall_friction": 0.5},
+            walls=[FLOOR], constraints=[initial("launch", "uniform", [0.0, 0.0], [0.2, 0.1],
+                                                velocity=[0.5, 0.0])])
+        if comm.rank == 0:
+            steps = len(rows)
+            contacts = max(float(r["solid_contacts"]) for r in rows)
+            if skin > 0:
+                assert 2 <= len(builds) < steps / 10, (len(builds), steps)
+            else:
+                assert len(builds) == steps
+    if comm.rank == 0:
+        assert contacts > 0
+        kept, every = last[stage.CONTACT_SKIN], last[0.0]
+        assert np.array_equal(kept["id"], every["id"])
+        assert np.array_equal(kept["x"], every["x"]) and np.array_equal(kept["v"], every["v"])
+
+
 def _slide_3d(end, g, mu, side):
     """A 3D block on a floor between two side walls (``side``: their own keys)."""
     return scene_text(

@@ -15,16 +15,19 @@ from numba import njit
 
 from parsph.core.kernel import fac_grad, w
 
-__all__ = ["wall_contact"]
+__all__ = ["contact_points_moved", "solid_wall_set", "wall_contact"]
 
 
 @njit(cache=True, error_model="numpy")
-def wall_contact(x, v, rows, vrows, wall, vw, indptr, indices, h, d, dim, mu, push, mu_w):
+def wall_contact(x, v, rows, vrows, wall, vw, indptr, indices, h, d, dim, mu, push, mu_w,
+                 r2max=math.inf):
     r"""Non-penetration and Coulomb friction against boundary particles, in place on ``v``.
 
     For each ``k``, the particle at ``x[rows[k]]`` (velocity ``v[vrows[k]]``) against its
-    neighbours ``j`` in CSR row ``rows[k]`` with ``wall[j] = 1`` (all within 2h of the
-    current positions), which move with ``vw[j]`` (zero for fixed walls):
+    neighbours ``j`` in CSR row ``rows[k]`` with ``wall[j] = 1`` within the kernel's
+    support (squared distance below ``r2max``: lists built wider, a Verlet list, are
+    exact; default every listed neighbour), which move with ``vw[j]`` (zero for fixed
+    walls):
 
     - outward normal :math:`\mathbf n = -\sum_w \nabla W(\mathbf x_k - \mathbf x_w)`
       normalised (points from the boundary into the body);
@@ -64,6 +67,8 @@ def wall_contact(x, v, rows, vrows, wall, vw, indptr, indices, h, d, dim, mu, pu
             r2 = 0.0
             for a in range(dim):
                 r2 += (x[r, a] - x[j, a]) ** 2
+            if r2 >= r2max:
+                continue
             dist = math.sqrt(r2)
             f = -fac_grad(dist, h, dim)
             wt = w(dist, h, dim)
@@ -88,10 +93,13 @@ def wall_contact(x, v, rows, vrows, wall, vw, indptr, indices, h, d, dim, mu, pu
             j = indices[q]
             if not wall[j]:
                 continue
+            r2 = 0.0
             g = 0.0
             for a in range(dim):
+                r2 += (x[r, a] - x[j, a]) ** 2
                 g += (x[r, a] - x[j, a]) * nv[a]
-            gap = min(gap, g)
+            if r2 < r2max:
+                gap = min(gap, g)
         if gap >= d * (1.0 + 1e-6):
             continue
         vn = 0.0
@@ -156,3 +164,34 @@ def solid_wall_set(x, rows, indptr, indices, xw, mu_solid, mu_wall):
     mu_w[nr:] = mu_wall
     return kept, ptr, shifted, xall, wall, np.full(nr, mu_solid), mu_w
 
+
+
+@njit(cache=True, error_model="numpy")
+def contact_points_moved(x, sel, n, rows, x0, skin2, kept, xall):
+    """Whether the wall-contact lists of the solids are stale: the selected rows among
+    the first ``n`` (``sel``) are not ``rows`` any more, or one of them has moved by
+    ``sqrt(skin2)`` or more from ``x0`` (its position when the lists were built). If not,
+    the kept solids' present positions are written to the front of ``xall`` (the point
+    set of :func:`solid_wall_set`), ready for :func:`wall_contact`.
+
+    A list of the walls within ``radius + skin`` of where a solid was holds every wall
+    within ``radius`` of where it is while it has moved less than the skin (the walls
+    are fixed), whichever particle the row now is."""
+    c = 0
+    m = rows.shape[0]
+    for i in range(n):
+        if not sel[i]:
+            continue
+        if c >= m or rows[c] != i:
+            return True
+        r2 = 0.0
+        for a in range(x.shape[1]):
+            r2 += (x[i, a] - x0[c, a]) ** 2
+        if r2 >= skin2:
+            return True
+        c += 1
+    if c != m:
+        return True
+    for k in range(kept.shape[0]):
+        xall[k] = x[kept[k]]
+    return False

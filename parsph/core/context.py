@@ -123,21 +123,25 @@ class Context:
         for name, rows in fresh.items():
             p[name][p.n_owned:] = rows
 
-    def nearby_walls(self, names, around=None) -> dict:
-        """Collective: the named fields of every wall row within 2h of this rank's
-        particles (``around``: bool mask of owned rows, default all; current ``x``),
-        sorted by particle id, so the result does not depend on the lookup's history.
+    def nearby_walls(self, names, around=None, reach=None) -> dict:
+        """Collective: the named fields of every wall row within ``reach`` (default 2h,
+        at most 4h) of this rank's particles (``around``: bool mask of owned rows, default
+        all; current ``x``), and maybe more, sorted by particle id, so the result does not
+        depend on the lookup's history.
 
         The walls are fixed: one lookup around the particles' bounding box widened by
-        2h serves every later call while each rank's particles stay inside that box; the
-        test is one logical-or reduction, where a lookup is an ``allgather`` and an
-        exchange (of a 2D coupled step of 260 particles, 0.2 of its 2.4 ms)."""
+        2h serves every later call while each rank's particles stay inside that box
+        (less ``reach`` - 2h); the test is one logical-or reduction, where a lookup is an
+        ``allgather`` and an exchange (of a 2D coupled step of 260 particles, 0.2 of its
+        2.4 ms)."""
         p = self.particles
         x = p["x"][: p.n_owned]
         lo, hi = masked_bounds(x, np.ones(len(x), bool) if around is None else around)
         key = tuple(names) + ("id",)
         c = self.wall_cache
-        stale = c is None or c[0] != key or bool((lo < c[1]).any() or (hi > c[2]).any())
+        margin = 0.0 if reach is None else reach - self.radius
+        stale = c is None or c[0] != key or bool((lo - margin < c[1]).any()
+                                                 or (hi + margin > c[2]).any())
         if global_any(self.comm, stale):
             lo, hi = lo - self.radius, hi + self.radius
             rows = self._walls_near(key, lo, hi)

@@ -25,17 +25,22 @@ import math
 import numpy as np
 
 from decomposition import raise_if_any
-from decomposition.reduce import global_max, global_sum
+from decomposition.reduce import global_any, global_max, global_sum
 from parsph.errors import NumericalError
 from parsph.scene.materials import PHASE_SOLID
 from parsph.solid import kernels
-from parsph.core.contact import solid_wall_set, wall_contact
+from parsph.core.contact import contact_points_moved, solid_wall_set, wall_contact
 from parsph.core.particles import max_speed
 from parsph.solid.boundary import initial_velocity, velocity_masks
 from parsph.solid.update import CAM_CLAY, C, elastic_energy, material_table, stress_terms, \
     update_particles, wave_speed
 
 TRIAXIAL_COLUMNS = ("axial_strain", "p_eff", "q", "spec_volume", "M")
+
+#: Skin of the solids' wall-contact lists, in particle spacings (:meth:`TLSPH._contact`):
+#: they are searched again once a solid has moved this far. Up to the skin a list holds
+#: more walls than reach it: (2.9 / 2.4)^dim of them at h = 1.2 d.
+CONTACT_SKIN = 0.5
 
 
 class TLSPH:
@@ -71,6 +76,7 @@ class TLSPH:
         if self.num.triaxial_csv:
             self.stats_columns += TRIAXIAL_COLUMNS
         self._stats = {}
+        self._walls = None  # the wall-contact lists (_contact)
 
     # ------------------------------------------------------------------ set-up
     def _masks(self, ctx):
@@ -235,28 +241,56 @@ class TLSPH:
             self._triaxial(ctx, dt)
 
     def _contact(self, ctx) -> int:
-        """Collective: wall particles near this rank's solids, then :func:`wall_contact`."""
+        """Collective: :func:`wall_contact` of the solids against the walls near them.
+
+        The lists of the walls near each solid are Verlet lists: built with a skin of
+        :data:`CONTACT_SKIN` particle spacings (:meth:`_wall_lists`) and kept while no
+        solid has moved that far (:func:`contact_points_moved`); the kernel counts only
+        the walls within reach, so the contact is the same as with lists built each step.
+        Built each step, their search had been 0.16 of a 2D coupled step's 1 ms of fixed
+        cost (``jobs/bench_overhead.py``)."""
+        p, n = ctx.particles, ctx.particles.n_owned
+        solid = self.sel[:n]
+        lists = self._walls
+        stale = lists is None or contact_points_moved(
+            p["x"], solid, n, lists["rows"], lists["x0"], (CONTACT_SKIN * ctx.d) ** 2,
+            lists["kept"], lists["xall"])
+        if global_any(ctx.comm, stale):
+            lists = self._walls = self._wall_lists(ctx, solid)
+        count = 0
+        if len(lists["kept"]):
+            count = wall_contact(lists["xall"], p["v"], lists["k"], lists["kept"],
+                                 lists["wall"], lists["still"], lists["indptr"],
+                                 lists["indices"], ctx.h, ctx.d, ctx.dim, lists["mu"],
+                                 lists["push"], lists["mu_w"], ctx.radius ** 2)
+        return global_sum(ctx.comm, count)
+
+    def _wall_lists(self, ctx, solid) -> dict:
+        """Collective: the solids' lists of the walls within ``radius`` + skin and the
+        point set :func:`wall_contact` takes (:func:`solid_wall_set`)."""
         from parsph.core.cross import build_cross_csr
 
         p, n = ctx.particles, ctx.particles.n_owned
-        solid = self.sel[:n]
-        near = ctx.nearby_walls(["x", "body"], around=solid)
+        reach = ctx.radius + CONTACT_SKIN * ctx.d
+        near = ctx.nearby_walls(["x", "body"], around=solid, reach=reach)
         xw = near["x"]
-        count = 0
         rows = np.flatnonzero(solid).astype(np.int64)
+        lists = dict(rows=rows, x0=p["x"][:n][rows], kept=rows[:0])
         if len(xw) and len(rows):
             # the walls near each solid; only the solids with any take part (most have
             # none: the contact had cost 16 ms of a 0.48 s 3D tank step, 5 of them on rows
             # with empty lists)
-            indptr, indices = build_cross_csr(p["x"][:n][rows], xw, ctx.radius)
-            rows, indptr, indices, xall, wall, mu, mu_w = solid_wall_set(
+            indptr, indices = build_cross_csr(lists["x0"], xw, reach)
+            kept, indptr, indices, xall, wall, mu, mu_w = solid_wall_set(
                 p["x"], rows, indptr, indices, xw, self.num.wall_friction,
                 self.wall_friction[near["body"] - len(ctx.scene.bodies)])
-            push = np.zeros((len(rows), ctx.dim))
-            still = np.zeros_like(xall)  # fixed walls
-            count = wall_contact(xall, p["v"], np.arange(len(rows)), rows, wall, still, indptr,
-                                 indices, ctx.h, ctx.d, ctx.dim, mu, push, mu_w)
-        return global_sum(ctx.comm, count)
+            lists.update(kept=kept, indptr=indptr, indices=indices, xall=xall, wall=wall,
+                         mu=mu, mu_w=mu_w, k=np.arange(len(kept)),
+                         push=np.zeros((len(kept), ctx.dim)),
+                         still=np.zeros_like(xall))  # fixed walls
+        if not len(lists["kept"]):
+            lists["xall"] = np.zeros((0, ctx.dim))
+        return lists
 
     def _elastic_energy(self, ctx) -> float:
         """Collective: the stored elastic energy of the owned solids (:func:`elastic_energy`:
