@@ -289,6 +289,8 @@ def test_stats_rows_reach_the_file_by_time_flush_or_close(tmp_path):
         s.write({"step": 1, "note": 'a, "b"'})
         s.write({"step": 2, "note": "line\nbreak"})
         assert rows() == []  # within the hour: buffered
+        with pytest.raises(TypeError, match="not a number"):
+            s.write({"step": [5]})  # refused at once, not at the flush
         s.flush()
         assert rows() == [["1", 'a, "b"'], ["2", "line\nbreak"]]
         s.write({"step": 3})
