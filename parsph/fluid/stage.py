@@ -378,20 +378,21 @@ class IISPH:
         gamma = rheology.fluid_strain_rate(x, p["v"], p["v_ghost"], m, rho, fluid, solid, slip,
                                            indptr, indices, h, dim, p["material"], self.table)
         self._viscosity(ctx, gamma, fluid[:n])
-        if coupled:  # the solids' acceleration per unit of their own pressure
-            p["a_self"][:n] = response.self_response(x, m, rho, rho0, fluid, solid,
-                                                     p["inv_mass"], indptr, indices, h, dim)
-        t_asm += time.perf_counter() - t0
-
-        g = np.asarray(ctx.body_acceleration(ctx.time), dtype=np.float64)
         own_fluid = fluid[:n] == 1
-        wall = act & ~own_fluid & (solid[:n] == 0)
-        morris = self.num.viscous_term == "morris"
         # the fluid's largest viscous number; a type-II row's pair coefficients are the
         # fluid's times its scale, so forward Euler is stable while their product is small
         _, (zeta, heavy), _ = global_reduce(ctx.comm, maxs=(
             float(p["nu"][:n][own_fluid].max()) * dt / (h * h) if own_fluid.any() else 0.0,
             float(solid[:n][own_solid].max()) if own_solid.any() else 0.0))
+        strong = coupled and heavy > 0  # a type-II row on some rank: the solid-response terms
+        if strong:  # the solids' acceleration per unit of their own pressure
+            p["a_self"][:n] = response.self_response(x, m, rho, rho0, fluid, solid,
+                                                     p["inv_mass"], indptr, indices, h, dim)
+        t_asm += time.perf_counter() - t0
+
+        g = np.asarray(ctx.body_acceleration(ctx.time), dtype=np.float64)
+        wall = act & ~own_fluid & (solid[:n] == 0)
+        morris = self.num.viscous_term == "morris"
         mode = self.num.viscous_solver
         explicit = mode == "explicit" or (
             mode == "auto" and zeta * max(1.0, heavy) < self.num.explicit_viscous_number)
@@ -441,7 +442,7 @@ class IISPH:
         nnz, rhs = ppe_csr(
             x, vs, m, rho, rho0, fluid, free, row, indptr, indices, h, dim, dt, alpha, d,
             self.num.ppe_laplacian == "corrected", expansion, ppe.offset, ptr, cols, vals)
-        if coupled:  # the solid-response term (strong coupling, docs/coupling.md)
+        if strong:  # the solid-response term (strong coupling, docs/coupling.md)
             near = self.buffers.csr(ppe, response.near_capacity(
                 fluid, free, solid, row, indptr, indices, ppe.offset, ptr), key="near")
             n_near = response.add_near_response(
@@ -455,7 +456,7 @@ class IISPH:
         # over the shared buffer, no copy: the viscous system rewrites it after this solve
         scale = ppe.assemble_csr_over(ptr, cols[:nnz], vals[:nnz], self._same_ppe_rows(
             p["id"][:n][order]), self.num.ppe_preconditioner_drop, unit_diagonal=True)
-        if coupled:
+        if strong:
             scale_rows(near[0], near[2][:n_near], scale)
             ppe.set_product(*blocks, near=(near[0], near[1][:n_near], near[2][:n_near]),
                             row_scale=scale)
