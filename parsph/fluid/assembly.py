@@ -25,7 +25,7 @@ from parsph.core.kernel import constants, delta, fac_grad_k, w_and_fac_grad_k, w
 from parsph.core.tensor import _eig6
 
 __all__ = ["WorkArrays", "density_and_surface", "fluid_weight_sum", "rows_in_order", "csr_capacity",
-           "pressure_gradient", "pressure_gradient_corrected", "has_fluid_neighbour"]
+           "pressure_gradient", "pressure_gradient_corrected"]
 
 #: A boundary particle (wall or solid) comes into contact with the fluid when the
 #: summation density of its support, fluid and boundary particles together, reaches this
@@ -234,19 +234,6 @@ def pressure_gradient(x, p, m, rho, fluid, indptr, indices, h, dim):
             g1 += c * d1
             g2 += c * d2
         _store(out, i, dim, g0, g1, g2)
-    return out
-
-
-@njit(cache=True, error_model="numpy")
-def has_fluid_neighbour(fluid, indptr, indices):
-    """1 for the owned rows with at least one fluid neighbour (uint8)."""
-    n = indptr.shape[0] - 1
-    out = np.zeros(n, dtype=np.uint8)
-    for i in range(n):
-        for q in range(indptr[i], indptr[i + 1]):
-            if fluid[indices[q]]:
-                out[i] = 1
-                break
     return out
 
 

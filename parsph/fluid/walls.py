@@ -8,8 +8,7 @@ Every particle carries ``body``, the index of the body or wall it was generated 
 from __future__ import annotations
 
 import numpy as np
-
-from parsph.fluid.assembly import has_fluid_neighbour
+from numba import njit
 
 NO_SLIP, FREE_SLIP = 0, 1
 
@@ -55,10 +54,27 @@ def system_rows(ctx, fluid, is_wall) -> np.ndarray:
         near = ctx.near_fluid
         band[:n] = is_wall & (near[:n] == 1) if near is not None and len(near) >= n \
             else is_wall
-    act = (fluid[:n] | has_fluid_neighbour(fluid, ctx.indptr, ctx.indices) | band[:n]) == 1
-    idle = is_wall & ~act
-    p["p"][:n][idle] = 0.0
-    p["p_ppe"][:n][idle] = 0.0
+    return _system_rows(fluid, band, is_wall, ctx.indptr, ctx.indices, p["p"], p["p_ppe"])
+
+
+@njit(cache=True, error_model="numpy")
+def _system_rows(fluid, band, is_wall, indptr, indices, p, p_ppe):
+    """:func:`system_rows` in one pass: the owned rows that are fluid, in the band or
+    have a fluid neighbour; the walls left out get p = 0 (numpy's six passes had cost
+    15 us of a 2D coupled step's fixed cost)."""
+    n = indptr.shape[0] - 1
+    act = np.zeros(n, dtype=np.bool_)
+    for i in range(n):
+        a = fluid[i] != 0 or band[i] != 0
+        if not a:
+            for q in range(indptr[i], indptr[i + 1]):
+                if fluid[indices[q]]:
+                    a = True
+                    break
+        act[i] = a
+        if is_wall[i] and not a:
+            p[i] = 0.0
+            p_ppe[i] = 0.0
     return act
 
 
@@ -72,4 +88,21 @@ def row_order(act, wall) -> np.ndarray:
     walls a rank received with its particles fall between fluid rows: on 2 ranks the
     2.0e5-particle dam break took 12 PPE iterations where 1 rank took 10; with the
     walls last both take 10 (docs/solvers.md)."""
-    return np.concatenate((np.flatnonzero(act & ~wall), np.flatnonzero(act & wall)))
+    return _row_order(act, wall)
+
+
+@njit(cache=True, error_model="numpy")
+def _row_order(act, wall):
+    """:func:`row_order` in two passes over the rows."""
+    n = act.shape[0]
+    count = 0
+    for i in range(n):
+        count += act[i]
+    order = np.empty(count, dtype=np.int64)
+    k = 0
+    for last in (False, True):
+        for i in range(n):
+            if act[i] and wall[i] == last:
+                order[k] = i
+                k += 1
+    return order
