@@ -7,6 +7,8 @@ as contiguous slot ranges), shared by :func:`parsph.core.neighbours.build_csr` a
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
@@ -19,6 +21,8 @@ _MAX_CELLS_PER_AXIS = 1 << 50
 #: Finer cells (2, 3) cut the candidates (134, 101 against 262 per particle on a 3D
 #: lattice, h = 1.2 d) but cost more in range set-up: not faster when measured.
 _REACH = 1
+
+_EPS = float(np.finfo(np.float64).eps)  # (np.finfo per call: 5 us of each search)
 
 
 @njit(cache=True, error_model="numpy")
@@ -101,8 +105,7 @@ def _cell_size(radius, extent, reach):
     pruning distance of :func:`_ranges`). Cells are also made coarse enough for at most
     ``_MAX_CELLS_PER_AXIS`` cells per axis.
     """
-    eps = np.finfo(np.float64).eps
-    delta = max(1e-12, 8.0 * eps * (extent / radius + 2.0))
+    delta = max(1e-12, 8.0 * _EPS * (extent / radius + 2.0))
     return max(radius * (1.0 + delta) / reach, extent / float(_MAX_CELLS_PER_AXIS - 2))
 
 
@@ -300,7 +303,7 @@ def _checked_box(x):
     # Python floats: a span beyond float64 is inf, without numpy's overflow warning
     extent = max(float(hi3[0]) - float(lo3[0]), float(hi3[1]) - float(lo3[1]),
                  float(hi3[2]) - float(lo3[2]))
-    if not np.isfinite(extent):
+    if not math.isfinite(extent):
         raise ValueError("positions span a range too large for float64")
     return x, lo3, hi3, extent
 
@@ -312,7 +315,8 @@ def _binned(x, lo3, hi3, extent, radius):
     the position (dense grid, or sorted occupied cells when it would be too large)."""
     reach = _REACH
     cell = _cell_size(radius, extent, reach)
-    ncell = (np.floor((hi3 - lo3) / cell) + 1.0).astype(np.int64)
+    ncell = np.array([math.floor((float(hi3[a]) - float(lo3[a])) / cell) + 1 for a in range(3)],
+                     dtype=np.int64)
     n_dense = int(ncell[0]) * int(ncell[1]) * int(ncell[2])  # Python ints: exact
     sparse = n_dense > _DENSE_PER_PARTICLE * x.shape[0] + _DENSE_MIN
     inv_cell = 1.0 / cell
