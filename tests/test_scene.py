@@ -56,6 +56,8 @@ BAD = [
     ({"set": "bodies.0.shape=sphere"}, ["bodies[0].shape", "box"]),
     ({"set": "bodies.0.hi=[9, 0.5]"}, ["bodies[0]", "not inside the domain"]),
     ({"set": "bodies.1.vertices=[[0, 0], [1, 1]]"}, ["bodies[1].vertices", "at least 3"]),
+    ({"set": "bodies.1.vertices=[[1.0, 0.0], [1.9, -0.3], [1.9, 0.6]]"},
+     ["bodies[1].vertices", "-0.3..0.6", "along axis 1", "not inside the domain"]),
     ({"set": "bodies.5.lo=[0, 0]"}, ["bodies.5", "index"]),
     ({"set": "walls.0.name=left"}, ["walls[0].name", "duplicate"]),
     ({"set": "materials.sand.model=gel"}, ["materials.sand.model", "gel", "kinematic"]),
@@ -100,6 +102,17 @@ def test_unknown_scene_and_missing_file():
         load_scene("nope")
     with pytest.raises(SceneError, match="does not exist"):
         load_scene("missing/scene.toml")
+
+
+def test_an_extruded_polygon_outside_the_domain_is_refused(tmp_path):
+    """Its particles would start outside the domain: refused when the scene loads, with
+    the key and the span, not at the run's first step."""
+    path = write(tmp_path, MOVING_3D)
+    with pytest.raises(SceneError, match=r"bodies\[0\]\.vertices.*spans -0\.6\.\.0\.6 m along "
+                       r"axis 2.*-0\.4\.\.1"):
+        load_scene(path, ["bodies.0.vertices=[[0.0, -0.6], [1.2, 0.0], [0.0, 0.6]]"])
+    with pytest.raises(SceneError, match=r"bodies\[0\]\.extent.*along y"):
+        load_scene(path, ["bodies.0.extent=[0.0, 1.5]"])
 
 
 def test_heightmap_errors(tmp_path):

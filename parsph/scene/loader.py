@@ -449,6 +449,7 @@ def _check_shape(source, key, shape, item, dim, lo, hi):
                      f"got {list(v)}")
         if shape == "extruded_polygon" and (len(item.extent) != 2 or item.extent[1] <= item.extent[0]):
             _err(source, f"{key}.extent", "needs [y0, y1] with y1 > y0")
+        _check_polygon_inside(source, key, item, dim, lo, hi)
     elif shape == "mesh":
         if dim != 3:
             _err(source, f"{key}.shape", "a mesh is for 3D scenes (domain.dim = 2); draw the "
@@ -462,6 +463,21 @@ def _check_shape(source, key, shape, item, dim, lo, hi):
             _err(source, f"{key}.shape", "a heightmap body is for 3D scenes")
         if not item.top:
             _err(source, f"{key}.top", "a heightmap body needs the path of its top-surface grid")
+
+
+def _check_polygon_inside(source, key, item, dim, lo, hi):
+    """A polygon's vertices (and an extruded polygon's extent) inside the domain: its
+    particles would otherwise start outside it, and the run stop at its first step."""
+    v = np.array(item.vertices, dtype=float)
+    axes = (0, 1) if dim == 2 else (0, 2)  # an extruded polygon's vertices are [x, z]
+    for a, ax in enumerate(axes):
+        if v[:, a].min() < lo[ax] or v[:, a].max() > hi[ax]:
+            _err(source, f"{key}.vertices", f"the polygon spans {v[:, a].min():g}..{v[:, a].max():g} m "
+                 f"along axis {ax}, not inside the domain's {lo[ax]:g}..{hi[ax]:g}; move the "
+                 "vertices or enlarge domain.lo/domain.hi")
+    if dim == 3 and (item.extent[0] < lo[1] or item.extent[1] > hi[1]):
+        _err(source, f"{key}.extent", f"{list(item.extent)} is not inside the domain's "
+             f"{lo[1]:g}..{hi[1]:g} along y; enlarge domain.lo/domain.hi")
 
 
 def _load_data(scn: Scene, source: str) -> dict:
