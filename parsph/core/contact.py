@@ -15,12 +15,15 @@ from numba import njit
 
 from parsph.core.kernel import fac_grad, w
 
-__all__ = ["contact_points_moved", "solid_wall_set", "wall_contact"]
+__all__ = ["NO_MASS", "contact_points_moved", "solid_wall_set", "wall_contact"]
+
+#: :func:`wall_contact`'s ``inv_m, mass, react`` when every partner is fixed (walls)
+NO_MASS = (np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)))
 
 
 @njit(cache=True, error_model="numpy")
 def wall_contact(x, v, rows, vrows, wall, vw, indptr, indices, h, d, dim, mu, push, mu_w,
-                 r2max=math.inf):
+                 r2max, inv_m, mass, react):
     r"""Non-penetration and Coulomb friction against boundary particles, in place on ``v``.
 
     For each ``k``, the particle at ``x[rows[k]]`` (velocity ``v[vrows[k]]``) against its
@@ -47,12 +50,27 @@ def wall_contact(x, v, rows, vrows, wall, vw, indptr, indices, h, d, dim, mu, pu
       step by which the boundary already holds the particle (the fluid's pressure
       impulse; zero for the solid).
 
+    A boundary of finite mass (``inv_m``: its partners' inverse masses per axis, rows of
+    ``x``; empty: every partner fixed) takes its share of each impulse: the particle
+    (mass ``mass[vrows[k]]``) changes its relative velocity by the fraction
+    :math:`s = 1 / (1 + m_k \sum_j f_j^2 / m_j)` only, :math:`f_j` the partners' kernel
+    weights over their sum, and the opposite impulse goes to the partners in proportion
+    to :math:`f_j`, added to ``react`` (momentum, rows of ``x``) for the caller to apply.
+    That is the plastic impulse of two bodies, reduced mass :math:`1/(1/m_k + 1/M_b)`:
+    momentum is kept and the kinetic energy falls by :math:`\mu v_n^2/2`. Against a
+    fixed boundary :math:`s = 1`, the full impulse, as before: a fluid particle struck by
+    a moving solid had taken the solid's velocity without slowing it, adding up to 1.4
+    J to a step in which gravity could supply 1.2 (docs/iisph.md).
+
     Returns the number of particles in contact.
     """
+    shared = inv_m.shape[0] > 0
     count = 0
     nv = np.zeros(3)
     vb = np.zeros(3)
     vr = np.zeros(3)
+    dv = np.zeros(3)
+    tv = np.zeros(3)
     for k in range(rows.shape[0]):
         r = rows[k]
         i = vrows[k]
@@ -111,11 +129,15 @@ def wall_contact(x, v, rows, vrows, wall, vw, indptr, indices, h, d, dim, mu, pu
         if vn >= 0.0 and pn <= 0.0:
             continue
         count += 1
+        for a in range(dim):
+            dv[a] = v[i, a]
         dvn = max(pn, 0.0)
         if vn < 0.0:
-            dvn -= vn
+            sn = _share(x, r, mass[i], wall, indptr, indices, h, dim, r2max, inv_m, nv,
+                        wsum) if shared else 1.0
+            dvn -= vn * sn
             for a in range(dim):
-                v[i, a] -= vn * nv[a]
+                v[i, a] -= vn * sn * nv[a]
                 vr[a] -= vn * nv[a]
             vn = 0.0
         vt2 = 0.0
@@ -124,10 +146,50 @@ def wall_contact(x, v, rows, vrows, wall, vw, indptr, indices, h, d, dim, mu, pu
         vt = math.sqrt(vt2)
         muk = musum / wsum if musum >= 0.0 else mu[k]
         if vt > 0.0 and muk > 0.0:
-            fac = max(0.0, 1.0 - muk * dvn / vt)
+            st = 1.0
+            if shared:
+                for a in range(dim):
+                    tv[a] = (vr[a] - vn * nv[a]) / vt
+                st = _share(x, r, mass[i], wall, indptr, indices, h, dim, r2max, inv_m, tv,
+                            wsum)
+            fac = max(0.0, 1.0 - muk * dvn / (vt * st))
             for a in range(dim):  # the tangential part only
-                v[i, a] -= (1.0 - fac) * (vr[a] - vn * nv[a])
+                v[i, a] -= (1.0 - fac) * st * (vr[a] - vn * nv[a])
+        if shared:  # the opposite impulse to the partners, by weight
+            for a in range(dim):
+                dv[a] = mass[i] * (v[i, a] - dv[a]) / wsum
+            for q in range(indptr[r], indptr[r + 1]):
+                j = indices[q]
+                r2 = 0.0
+                for a in range(dim):
+                    r2 += (x[r, a] - x[j, a]) ** 2
+                if wall[j] and r2 < r2max:
+                    wt = w(math.sqrt(r2), h, dim)
+                    for a in range(dim):
+                        react[j, a] -= wt * dv[a]
     return count
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _share(x, r, m, wall, indptr, indices, h, dim, r2max, inv_m, e, wsum):
+    """:func:`wall_contact`'s fraction of an impulse along ``e`` that the particle at
+    ``x[r]`` (mass ``m``) takes: ``1 / (1 + m sum_j f_j^2 e.diag(inv_m[j]).e)``."""
+    q2 = 0.0
+    for q in range(indptr[r], indptr[r + 1]):
+        j = indices[q]
+        if not wall[j]:
+            continue
+        r2 = 0.0
+        for a in range(dim):
+            r2 += (x[r, a] - x[j, a]) ** 2
+        if r2 >= r2max:
+            continue
+        f = w(math.sqrt(r2), h, dim) / wsum
+        ee = 0.0
+        for a in range(dim):
+            ee += e[a] * e[a] * inv_m[j, a]
+        q2 += f * f * ee
+    return 1.0 / (1.0 + m * q2)
 
 
 @njit(cache=True, error_model="numpy")

@@ -36,7 +36,7 @@ from decomposition.numbering import global_offset
 from decomposition.reduce import global_any, global_max, global_min, global_reduce, global_sum
 from parsph.fluid import assembly, response, rheology, viscous
 from parsph.fluid.ppe import density_error_factor, ppe_csr
-from parsph.core.contact import wall_contact
+from parsph.fluid.surface import surface_contact
 from parsph.core.particles import max_speed
 from parsph.fluid.walls import row_order, system_rows, wall_slip
 from parsph.scene.materials import PHASE_FLUID, PHASE_WALL
@@ -519,24 +519,13 @@ class IISPH:
         else:
             self.solid_force = np.zeros((n, dim))
         contacts = 0
-        if self.num.surface_wall_contact:
-            # a free-surface row (p = 0, or a pocket's soil pressure) is held off a wall or
-            # the soil only by their extrapolated pressure, too weak for a lone particle:
-            # it would sink in until its density flags it interior and the PPE throws it
-            # out. Its basal friction is the Bingham yield's p tan(phi'), p from the
-            # normal impulses of the boundary's pressure and of the contact (docs/iisph.md)
-            surface = np.flatnonzero(own_fluid & (free[:n] == 1))
-            if len(surface):
-                mu = self.table["tan_phi"][p["material"][surface]]
-                push = -dt * grad[surface] / rho0[surface, None]  # the pressure impulse
-                # partners move with their v* (walls: still): the same on owned and
-                # halo rows, whatever the partition
-                moving = np.where((solid > 0)[:, None], vs, 0.0)
-                contacts = wall_contact(x, vnew, surface, surface, 1 - fluid, moving, indptr,
-                                        indices, h, d, dim, mu, push,
-                                        np.full(len(fluid), -1.0))
+        if self.num.surface_wall_contact:  # (fluid/surface.py)
+            contacts, reaction = surface_contact(ctx, vnew, own_fluid, free, fluid, solid,
+                                                 strong, m, grad, rho0, dt, self.table,
+                                                 indptr, indices)
+            self.solid_force[:n] += reaction / dt  # (zero without a type-II row)
         np.copyto(p["v"][:n], vnew, where=own_fluid[:, None])
-        grad = vnew = corr = moving = vs = None  # not held through the viscous solve
+        grad = vnew = corr = vs = None  # not held through the viscous solve
         t_asm += time.perf_counter() - t0
         if first:  # the viscous solve on the projected velocity, the new p in eq. (40)
             for name, _ in STEP_FIELDS[1:]:

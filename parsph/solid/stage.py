@@ -29,7 +29,7 @@ from decomposition.reduce import global_any, global_max, global_sum
 from parsph.errors import NumericalError
 from parsph.scene.materials import PHASE_SOLID
 from parsph.solid import kernels
-from parsph.core.contact import contact_points_moved, solid_wall_set, wall_contact
+from parsph.core.contact import NO_MASS, contact_points_moved, solid_wall_set, wall_contact
 from parsph.core.particles import max_speed
 from parsph.solid.boundary import initial_velocity, velocity_masks
 from parsph.solid.update import CAM_CLAY, C, elastic_energy, material_table, stress_terms, \
@@ -262,7 +262,7 @@ class TLSPH:
             count = wall_contact(lists["xall"], p["v"], lists["k"], lists["kept"],
                                  lists["wall"], lists["still"], lists["indptr"],
                                  lists["indices"], ctx.h, ctx.d, ctx.dim, lists["mu"],
-                                 lists["push"], lists["mu_w"], ctx.radius ** 2)
+                                 lists["push"], lists["mu_w"], ctx.radius ** 2, *NO_MASS)
         return global_sum(ctx.comm, count)
 
     def _wall_lists(self, ctx, solid) -> dict:
