@@ -557,7 +557,14 @@ def test_slope_failure_at_a_finer_resolution(comm, mpi_tmp_path):
 def test_slope_failure_converges(comm, mpi_tmp_path):
     """d = 0.05, 0.035 and 0.025 m (docs/slope.md has the table): every run passes the
     checks, and the run-out and the fluidised volume converge, the change from 0.035 to
-    0.025 m being smaller than from 0.05 to 0.035 m."""
+    0.025 m being smaller than from 0.05 to 0.035 m.
+
+    The run-out is the deposit's: the distance along ``output.front_direction`` that 99 %
+    of the soil's mass stays behind at 3 s. The farthest particle (stats.csv's ``front``)
+    is one loose grain, set by round-off as much as by d: runs differing only in round-off
+    spread it over 0.48 m (docs/slope.md); it is printed, not tested."""
+    from parsph.io import read_frame
+
     results = {}
     for d in (0.05, 0.035, 0.025):
         rows = _slope(comm, mpi_tmp_path, d)
@@ -565,8 +572,12 @@ def test_slope_failure_converges(comm, mpi_tmp_path):
             _slope_checks(rows, d)
             ppe = np.median([float(r["ppe_iterations"]) for r in rows
                              if float(r["n_fluid"]) > 0])
-            results[d] = (float(rows[-1]["front"]), float(rows[-1]["fluidised_volume"]))
-            print(f"d = {d} m: front {results[d][0]:.3f} m, fluidised "
+            last = read_frame(os.path.join(mpi_tmp_path, f"slope_{d}"))
+            deposit = -last["x"][last["phase"] != 2, 0]  # along front_direction, -x
+            results[d] = (float(np.percentile(deposit, 99)),
+                          float(rows[-1]["fluidised_volume"]))
+            print(f"d = {d} m: run-out (99 % of the mass) {results[d][0]:.3f} m, farthest "
+                  f"particle {float(rows[-1]['front']):.3f} m, fluidised "
                   f"{results[d][1]:.4f} m^2, {len(rows)} steps, median PPE iterations "
                   f"{ppe:g}, largest energy ratio "
                   f"{max(float(r['energy_ratio']) for r in rows):.3f}")
