@@ -28,9 +28,9 @@ def wall_contact(x, v, rows, vrows, wall, vw, indptr, indices, h, d, dim, mu, pu
 
     For each ``k``, the particle at ``x[rows[k]]`` (velocity ``v[vrows[k]]``) against its
     neighbours ``j`` in CSR row ``rows[k]`` with ``wall[j] = 1`` within the kernel's
-    support (squared distance below ``r2max``: lists built wider, a Verlet list, are
-    exact; default every listed neighbour), which move with ``vw[j]`` (zero for fixed
-    walls):
+    support (squared distance below ``r2max``, so that lists built wider, Verlet lists,
+    are exact; ``math.inf`` takes every listed neighbour), which move with ``vw[j]``
+    (zero for fixed walls):
 
     - outward normal :math:`\mathbf n = -\sum_w \nabla W(\mathbf x_k - \mathbf x_w)`
       normalised (points from the boundary into the body);
@@ -56,8 +56,8 @@ def wall_contact(x, v, rows, vrows, wall, vw, indptr, indices, h, d, dim, mu, pu
     :math:`s = 1 / (1 + m_k \sum_j f_j^2 / m_j)` only, :math:`f_j` the partners' kernel
     weights over their sum, and the opposite impulse goes to the partners in proportion
     to :math:`f_j`, added to ``react`` (momentum, rows of ``x``) for the caller to apply.
-    That is the plastic impulse of two bodies, reduced mass :math:`1/(1/m_k + 1/M_b)`:
-    momentum is kept and the kinetic energy falls by :math:`\mu v_n^2/2`. Against a
+    That is the plastic impulse of two bodies, reduced mass :math:`m_r = 1/(1/m_k +
+    1/M_b)`: momentum is kept and the kinetic energy falls by :math:`m_r v_n^2/2`. Against a
     fixed boundary :math:`s = 1`, the full impulse, as before: a fluid particle struck by
     a moving solid had taken the solid's velocity without slowing it, adding up to 1.4
     J to a step in which gravity could supply 1.2 (docs/iisph.md).
