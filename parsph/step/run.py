@@ -28,8 +28,6 @@ import math
 import os
 import time
 
-import numpy as np
-
 from decomposition import collective, world
 from decomposition.box import Box
 from decomposition.reduce import global_any, global_sum
