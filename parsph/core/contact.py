@@ -82,9 +82,7 @@ def wall_contact(x, v, rows, vrows, wall, vw, indptr, indices, h, d, dim, mu, pu
             j = indices[q]
             if not wall[j]:
                 continue
-            r2 = 0.0
-            for a in range(dim):
-                r2 += (x[r, a] - x[j, a]) ** 2
+            r2 = _dist2(x, r, j, dim)
             if r2 >= r2max:
                 continue
             dist = math.sqrt(r2)
@@ -111,12 +109,10 @@ def wall_contact(x, v, rows, vrows, wall, vw, indptr, indices, h, d, dim, mu, pu
             j = indices[q]
             if not wall[j]:
                 continue
-            r2 = 0.0
-            g = 0.0
-            for a in range(dim):
-                r2 += (x[r, a] - x[j, a]) ** 2
-                g += (x[r, a] - x[j, a]) * nv[a]
-            if r2 < r2max:
+            if _dist2(x, r, j, dim) < r2max:
+                g = 0.0
+                for a in range(dim):
+                    g += (x[r, a] - x[j, a]) * nv[a]
                 gap = min(gap, g)
         if gap >= d * (1.0 + 1e-6):
             continue
@@ -160,11 +156,8 @@ def wall_contact(x, v, rows, vrows, wall, vw, indptr, indices, h, d, dim, mu, pu
                 dv[a] = mass[i] * (v[i, a] - dv[a]) / wsum
             for q in range(indptr[r], indptr[r + 1]):
                 j = indices[q]
-                r2 = 0.0
-                for a in range(dim):
-                    r2 += (x[r, a] - x[j, a]) ** 2
-                if wall[j] and r2 < r2max:
-                    wt = w(math.sqrt(r2), h, dim)
+                wt = _partner_weight(x, r, j, wall, h, dim, r2max)
+                if wt > 0.0:
                     for a in range(dim):
                         react[j, a] -= wt * dv[a]
     return count
@@ -177,19 +170,34 @@ def _share(x, r, m, wall, indptr, indices, h, dim, r2max, inv_m, e, wsum):
     q2 = 0.0
     for q in range(indptr[r], indptr[r + 1]):
         j = indices[q]
-        if not wall[j]:
+        f = _partner_weight(x, r, j, wall, h, dim, r2max) / wsum
+        if f == 0.0:
             continue
-        r2 = 0.0
-        for a in range(dim):
-            r2 += (x[r, a] - x[j, a]) ** 2
-        if r2 >= r2max:
-            continue
-        f = w(math.sqrt(r2), h, dim) / wsum
         ee = 0.0
         for a in range(dim):
             ee += e[a] * e[a] * inv_m[j, a]
         q2 += f * f * ee
     return 1.0 / (1.0 + m * q2)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _dist2(x, r, j, dim):
+    """Squared distance of the points ``x[r]`` and ``x[j]``, summed over the axes in order
+    (the test of the neighbour searches)."""
+    r2 = 0.0
+    for a in range(dim):
+        r2 += (x[r, a] - x[j, a]) ** 2
+    return r2
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _partner_weight(x, r, j, wall, h, dim, r2max):
+    """Kernel weight of ``j`` as :func:`wall_contact`'s partner of ``x[r]``: ``W`` for a
+    boundary row within reach, else 0."""
+    if not wall[j]:
+        return 0.0
+    r2 = _dist2(x, r, j, dim)
+    return w(math.sqrt(r2), h, dim) if r2 < r2max else 0.0
 
 
 @njit(cache=True, error_model="numpy")

@@ -523,7 +523,8 @@ class IISPH:
             contacts, reaction = surface_contact(ctx, vnew, own_fluid, free, fluid, solid,
                                                  strong, m, grad, rho0, dt, self.table,
                                                  indptr, indices)
-            self.solid_force[:n] += reaction / dt  # (zero without a type-II row)
+            if reaction is not None:  # (only with a type-II row)
+                self.solid_force[:n] += reaction / dt
         np.copyto(p["v"][:n], vnew, where=own_fluid[:, None])
         grad = vnew = corr = vs = None  # not held through the viscous solve
         t_asm += time.perf_counter() - t0

@@ -23,7 +23,7 @@ from parsph.core.contact import NO_MASS, wall_contact
 
 
 def surface_contact(ctx, vnew, own_fluid, free, fluid, solid, strong, m, push_grad, rho0,
-                    dt, table, indptr, indices) -> tuple[int, np.ndarray]:
+                    dt, table, indptr, indices) -> tuple[int, np.ndarray | None]:
     """Collective: the contact of the owned free-surface fluid rows, in place on ``vnew``
     (their velocities after the pressure step, shape (n_owned, dim)).
 
@@ -32,18 +32,15 @@ def surface_contact(ctx, vnew, own_fluid, free, fluid, solid, strong, m, push_gr
     first, and each owned solid row's ``v`` takes the reactions of the contacts near it
     (the halo rows' summed on their owners). Returns ``(contacts, reaction)``: the
     number of rows in contact and the momentum the owned rows received (kg m/s per
-    row, shape (n_owned, dim), zero without ``strong``).
+    row, shape (n_owned, dim); None without ``strong``).
     """
     p, n, dim = ctx.particles, ctx.n_owned, ctx.dim
-    reaction = np.zeros((n, dim))
+    masses = NO_MASS
     if strong:
         ctx.update_halo(["v"])  # the solid rows' velocities after the PPE
-    surface = np.flatnonzero(own_fluid & (free[:n] == 1))
-    if strong:
         react = np.zeros((len(fluid), dim))
         masses = (np.ascontiguousarray(p["inv_mass"]), np.ascontiguousarray(m), react)
-    else:
-        masses = NO_MASS
+    surface = np.flatnonzero(own_fluid & (free[:n] == 1))
     contacts = 0
     if len(surface):
         mu = table["tan_phi"][p["material"][surface]]
@@ -54,10 +51,11 @@ def surface_contact(ctx, vnew, own_fluid, free, fluid, solid, strong, m, push_gr
         contacts = wall_contact(p["x"], vnew, surface, surface, 1 - fluid, moving, indptr,
                                 indices, ctx.h, ctx.d, dim, mu, push,
                                 np.full(len(fluid), -1.0), math.inf, *masses)
-    if strong:
-        reaction = react[:n].copy()
-        halo = ctx.halo
-        if halo.n_send or halo.n_halo:  # (a rank that exchanges nothing posts nothing)
-            reaction += halo.reverse_add({"r": react[n:]})["r"]
-        p["v"][:n] += p["inv_mass"][:n] * reaction
+    if not strong:
+        return contacts, None
+    reaction = react[:n].copy()
+    halo = ctx.halo
+    if halo.n_send or halo.n_halo:  # (a rank that exchanges nothing posts nothing)
+        reaction += halo.reverse_add({"r": react[n:]})["r"]
+    p["v"][:n] += p["inv_mass"][:n] * reaction
     return contacts, reaction
