@@ -103,6 +103,9 @@ class LinearSystem(MatrixAssembly):
         ``"right"``: it tests the true residual ``b - A x``, whose norm an ``atol`` in the
         equation's own units can bound (the PPE's density error, docs/iisph.md); the
         options database wins (``-{prefix}ksp_pc_side``).
+    options : dict of str to str, optional
+        More defaults of this system's options, without the prefix (e.g.
+        ``{"sub_pc_type": "icc"}``); options given in the database win.
 
     Attributes
     ----------
@@ -161,6 +164,7 @@ class LinearSystem(MatrixAssembly):
         reuse_preconditioner: int = 1,
         hypre_options: dict | None = None,
         pc_side: str = "left",
+        options: dict | None = None,
     ):
         PETSc = petsc_env.petsc()
         self._PETSc = PETSc
@@ -188,6 +192,11 @@ class LinearSystem(MatrixAssembly):
         self._arrays = {}  # arrays of the matrices built on arrays, see _array
         self._held = None  # the caller's arrays a matrix is built over (assemble_csr_over)
         self._pmat = None  # a sparser matrix BoomerAMG was set up on (assemble_csr_over)
+        if options:  # the system's own defaults; options given in the database win
+            opts = PETSc.Options()
+            for key, value in options.items():
+                if not opts.hasName(self.prefix + key):
+                    opts.setValue(self.prefix + key, value)
         self._ksp = self._create_ksp(ksp_type, pc_type, rtol, atol, max_it,
                                      {**_HYPRE_DEFAULTS, **(hypre_options or {})}, pc_side)
 

@@ -294,10 +294,10 @@ def run_on_one_and_two(comm, scene, tmpdir):
 
     from mpi4py import MPI
 
-    from parsph.step.pipeline import plan, uses_petsc
+    from parsph.step.pipeline import needs_petsc, plan
     from parsph.step.run import run
 
-    if uses_petsc(plan(scene)):  # PetscInitialize is collective on the world: all ranks now
+    if needs_petsc(plan(scene), scene):  # PetscInitialize is collective on the world: all ranks now
         import solvers
 
         solvers.init([])

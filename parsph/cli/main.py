@@ -152,12 +152,12 @@ def _load(comm, scene_name, overrides):
 
 
 def cmd_run(comm, args, petsc) -> int:
-    from parsph.step.pipeline import plan, uses_petsc
+    from parsph.step.pipeline import needs_petsc, plan
     from parsph.step.run import run
 
     scene = _load(comm, args.scene, args.overrides)
     specs = plan(scene)
-    if petsc and not uses_petsc(specs) and comm.rank == 0:
+    if petsc and not needs_petsc(specs, scene) and comm.rank == 0:
         logging.getLogger("parsph").warning(
             "PETSc options %s ignored: scene '%s' solves no implicit system", " ".join(petsc),
             scene.name)

@@ -37,6 +37,9 @@ from parsph.scene.materials import PHASE_FLUID, PHASE_SOLID
 #: (``rho0`` and ``rho`` of solid rows in the main set are what the fluid sees; the
 #: solid's own rest density lives in the view.)
 SOLID_STATE = ("x", "v", "p_c", "modulus", "solid_init", "eps_p", "p", "porosity")
+#: The regularised soils' non-local strains (:mod:`parsph.solid.regularise`), where a
+#: scene has them: solid state too.
+NONLOCAL_STATE = ("eps_p_nl", "eps_p_shift")
 
 #: The solid's tensors, which only the TLSPH step reads: held by the view alone, and put
 #: back in the main set (:meth:`Coupled.state_to_main`) only for a checkpoint, a probe
@@ -57,7 +60,7 @@ MAIN_ONLY = ("nu", "v_star", "v_ghost", "free_surface", "wall_slip", "fluid_row"
 #: migrate) 375 of a 3D row's 613 bytes, which had been 40 % of the 2-rank halo
 #: exchange's time (docs/performance.md).
 HALO_SKIP = VIEW_STATE + ("X", "eps_p", "p_c", "porosity", "modulus", "ref_count0",
-                          "solid_init", "fluidised", "ppe_band")
+                          "solid_init", "fluidised", "ppe_band") + NONLOCAL_STATE
 
 #: stats.csv columns of the coupling; ``fsi_force_*`` (N, N/m in 2D) is the net force of
 #: the fluid on the solid (eq. (45), pressure and viscous parts) before constraints.
@@ -76,6 +79,9 @@ class Coupled:
         from parsph.solid.stage import TLSPH
 
         self.solid = TLSPH(ctx)  # adds the solid fields to the main set
+        self.solid_state = SOLID_STATE + tuple(k for k in NONLOCAL_STATE if k in ctx.particles)
+        # the phase change's trigger: the non-local plastic strain where soils have one
+        self.trigger = "eps_p_nl" if "eps_p_nl" in ctx.particles else "eps_p"
         for name in VIEW_FIELDS:  # but these live in the solid's view only
             ctx.particles.data.pop(name, None)
         self.fluid = IISPH(ctx)  # adds the fluid fields
@@ -99,7 +105,8 @@ class Coupled:
         self.rho_f = ctx.materials[self.target].density if self.target >= 0 \
             else fluids[0].density
         self.target_rho0 = self.rho_f * lattice_density_ratio(ctx.h / ctx.d, ctx.dim)
-        self.output_fields = tuple(self.fluid.output_fields) + ("fluidised",)
+        self.output_fields = tuple(self.fluid.output_fields) + ("fluidised",) \
+            + tuple(self.solid.output_fields)
         self.stats_columns = tuple(self.solid.stats_columns) + tuple(self.fluid.stats_columns) \
             + ("n_coupled",) + STATS + tuple(f"fsi_force_{a}" for a in "xyz"[:ctx.dim])
         ctx.halo_skip = HALO_SKIP
@@ -121,7 +128,7 @@ class Coupled:
         first = sp["ref_count0"][:ns] == 0
         sp["ref_count0"][:ns][first] = count[first]
         self.solid.setup(self.view.ctx)
-        self.view.write_back(SOLID_STATE + ("ref_count0",))
+        self.view.write_back(self.solid_state + ("ref_count0",))
         for name in VIEW_STATE:
             ctx.particles.data.pop(name, None)
 
@@ -278,7 +285,7 @@ class Coupled:
         failed.append(self.solid.failed)
         # a particle that failed in any sub-step has failed in the step
         self.solid.failed = np.unique(np.concatenate(failed)) if k > 1 else failed[0]
-        view.write_back(SOLID_STATE)
+        view.write_back(self.solid_state)
         t_solid += time.perf_counter() - t0
         t0 = time.perf_counter()
         self._phase_change(ctx)
@@ -289,7 +296,7 @@ class Coupled:
         """Section 3.3: solid rows past the plastic-strain limit become fluid."""
         p, n = ctx.particles, ctx.n_owned
         if self.limit > 0.0:
-            past = (p["phase"][:n] == PHASE_SOLID) & (p["eps_p"][:n] > self.limit)
+            past = (p["phase"][:n] == PHASE_SOLID) & (p[self.trigger][:n] > self.limit)
             failed = self.view.rows[self.solid.failed]  # det F <= 0: it has failed
             past[failed] = True
             flag = np.flatnonzero(past)
@@ -336,4 +343,5 @@ class Coupled:
             n_fluid_rank_min=int(nf_min), n_fluid_rank_max=int(nf_max), fluidised_volume=vol)
 
     def finish(self, ctx) -> None:
+        self.solid.finish(self.view.ctx if self.view is not None else ctx)
         self.fluid.destroy()

@@ -279,6 +279,8 @@ def load_scene(scene: str, overrides=()) -> Scene:
         raise SceneError(f"scene file '{path}' is not UTF-8 text; is it really a TOML file?") from None
     except tomllib.TOMLDecodeError as exc:
         raise SceneError(f"scene file '{path}' is not valid TOML: {exc}") from None
+    file_d = raw.get("domain", {}).get("particle_size") if isinstance(raw.get("domain"), dict) \
+        else None
     apply_overrides(raw, overrides)
     source = path + (" (with --set " + " ".join(overrides) + ")" if overrides else "")
     materials_raw = raw.pop("materials", {})
@@ -293,6 +295,7 @@ def load_scene(scene: str, overrides=()) -> Scene:
     object.__setattr__(scn, "materials", materials)
     object.__setattr__(scn, "source", os.path.abspath(path))
     scn = _normalise(scn, source)
+    _regularise(scn, file_d, source)
     _cross_check(scn, source)
     check_solid(scn, source)
     check_probes(scn, source)
@@ -408,6 +411,47 @@ def geometry_warnings(scn: Scene) -> list[str]:
                            f"leaves {gap[axis]:.3g} m empty at its upper side (a fluid "
                            f"collapses into such a gap); choose d = extent / N")
     return out
+
+
+def _regularise(scn: Scene, file_d, source: str) -> None:
+    """The internal length of each softening soil (docs/regularisation.md): given, or
+    :data:`~parsph.solid.regularise.DEFAULT_LENGTH_IN_D` particle sizes of the scene as
+    its file gives it, so ``--set domain.particle_size`` refines with the length fixed.
+    Refused, naming the key: a length on a soil that does not soften, and a length the
+    particle size cannot resolve. With ``regularisation = "local"`` a given length is
+    kept but unused (the paper's rule is one key away from a scene that declares one)."""
+    from parsph.scene.materials import DEFAULT_LENGTH_IN_D, MIN_RESOLVED
+
+    d = scn.domain.particle_size
+    base = file_d if isinstance(file_d, (int, float)) and file_d > 0 else d
+    trigger = scn.phase_change.eps_p_limit > 0.0
+    for name, mat in list(scn.materials.items()):
+        if not hasattr(mat, "internal_length"):
+            continue
+        key = f"materials.{name}"
+        needs = mat.softens() or (trigger and mat.localises())
+        if mat.internal_length is not None and not needs:
+            why = ("its hardening is >= 0 or its cohesion at the residual"
+                   if mat.model == "drucker_prager" else
+                   f"a {mat.model} soil's softening stays local")
+            _err(source, f"{key}.internal_length", f"material '{name}' has no softening "
+                 f"the length acts on ({why})" + (
+                     "" if trigger else " and the scene has no phase change whose trigger "
+                     "it would regularise") + "; remove the key")
+        if mat.regularisation != "nonlocal" or not needs:
+            continue
+        ell = mat.internal_length
+        if ell is None:
+            ell = DEFAULT_LENGTH_IN_D * base
+            mat = replace(mat, internal_length=ell)
+            scn.materials[name] = mat
+        object.__setattr__(mat, "_regularised", True)
+        if ell < MIN_RESOLVED * d * (1.0 - 1e-9):
+            _err(source, f"{key}.internal_length", f"{ell:g} m is below the particle size "
+                 f"d = {d:g} m, which cannot resolve it (the average would not reach a "
+                 f"neighbour): use d <= {ell / MIN_RESOLVED:g} m (--set "
+                 f"domain.particle_size=...), or a length >= {MIN_RESOLVED * d:g} m, or "
+                 f"{key}.regularisation = \"local\" for the paper's local rule")
 
 
 def _check_phase_change(scn: Scene, source: str) -> None:

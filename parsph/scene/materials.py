@@ -8,6 +8,7 @@ never compiles a kernel.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional
 
 from parsph.scene import schema
 from parsph.errors import SceneError
@@ -79,6 +80,45 @@ class _Solid:
         return (1.0 - self.porosity) * self.density
 
 
+#: Default internal length of a softening soil without ``internal_length``, in particle
+#: sizes of the scene as its file gives it (docs/regularisation.md).
+DEFAULT_LENGTH_IN_D = 2.0
+#: Smallest internal length a run accepts, in particle sizes (docs/regularisation.md).
+MIN_RESOLVED = 1.0
+
+
+@dataclass(frozen=True, kw_only=True)
+class _Softening:
+    """The internal length of a soil that can soften (docs/regularisation.md)."""
+
+    regularisation: str = spec("nonlocal", doc="nonlocal: softening and the phase-change "
+                               "trigger see the internal length (docs/regularisation.md); "
+                               "local: the paper's local rule", choices=("nonlocal", "local"))
+    internal_length: Optional[float] = spec(None, doc="internal length l (m) of the non-local "
+                                            "plastic strain; default 2 d of the scene file",
+                                            gt=0.0)
+    nonlocal_m: float = spec(2.0, doc="over-non-local factor m of the softening (-), "
+                             "Vermeer & Brinkgreve (1994); 1 = softening on the average alone",
+                             ge=1.0, le=10.0)
+
+    def softens(self) -> bool:
+        """Whether its softening sees the internal length (modified Cam-Clay's, on the dry
+        side, stays local: docs/regularisation.md)."""
+        return False
+
+    def localises(self) -> bool:
+        """Whether a shear band can form in it (softening, or a non-associative flow;
+        modified Cam-Clay on the dry side)."""
+        return True
+
+    @property
+    def regularised(self) -> bool:
+        """Whether its softening and phase-change trigger see ``internal_length``: set
+        when the scene loads (``nonlocal`` soils that soften, or that localise in a scene
+        with a phase change, whose trigger then needs the length)."""
+        return self.__dict__.get("_regularised", False)
+
+
 @dataclass(frozen=True, kw_only=True)
 class Hencky(_Solid):
     """Hencky hyperelastic solid, eqs. (15)-(16)."""
@@ -87,7 +127,7 @@ class Hencky(_Solid):
 
 
 @dataclass(frozen=True, kw_only=True)
-class DruckerPrager(_Solid):
+class DruckerPrager(_Softening, _Solid):
     """Hencky elasticity with non-associative Drucker-Prager plasticity, Appendix A."""
 
     young_modulus: float = spec(doc="Young's modulus E (Pa)", gt=0.0)
@@ -97,9 +137,18 @@ class DruckerPrager(_Solid):
     hardening: float = spec(0.0, doc="hardening modulus H (Pa), negative = softening")
     residual_cohesion: float = spec(0.0, doc="cohesion never softens below this (Pa)", ge=0.0)
 
+    def softens(self) -> bool:
+        """A softening cohesion (H < 0, Tables 2 and 3)."""
+        return self.hardening < 0.0 and self.cohesion > self.residual_cohesion
+
+    def localises(self) -> bool:
+        """Softening, or a non-associative flow (psi < phi'), whose band forms even
+        without softening (Rudnicki & Rice 1975)."""
+        return self.softens() or self.dilatancy_angle < self.friction_angle
+
 
 @dataclass(frozen=True, kw_only=True)
-class CamClay(_Solid):
+class CamClay(_Softening, _Solid):
     """Hencky-type elasticity with modified Cam-Clay plasticity, Appendix B."""
 
     kappa: float = spec(doc="gradient of the swelling line kappa (-)", gt=0.0)

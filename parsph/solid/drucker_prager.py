@@ -124,12 +124,28 @@ def dp_yield(tau, c, phi):
     return math.sqrt(j2) + eta * p - xi * c
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _cohesion(c0, H, c_r, c_max, eps):
+    """Cohesion ``c0 + H eps`` within ``[c_r, c_max]`` and its slope there (0 where a
+    bound holds)."""
+    c = c0 + H * eps
+    if c <= c_r:
+        return c_r, 0.0
+    if c >= c_max:
+        return c_max, 0.0
+    return c, H
+
+
 @njit(cache=True, error_model="numpy")
-def dp_return_coeffs_inplace(tau, eps_p, K, mu, c0, H, c_r, xi, eta, eta_bar):
+def dp_return_coeffs_inplace(tau, eps_p, K, mu, c0, H, c_r, xi, eta, eta_bar,
+                             c_max=math.inf):
     """Drucker-Prager return map on ``tau`` in place, with precomputed cone coefficients.
 
     Same as :func:`dp_return` but takes ``(xi, eta, eta_bar)`` from :func:`dp_params`
     (computed once per material) and overwrites ``tau`` (trial in, returned out).
+    ``c_max``: the cohesion never exceeds it (the initial cohesion of a soil whose
+    softening sees a non-local plastic strain, :mod:`parsph.solid.regularise`, where
+    ``c0`` is shifted by its non-local correction).
 
     Returns
     -------
@@ -141,12 +157,7 @@ def dp_return_coeffs_inplace(tau, eps_p, K, mu, c0, H, c_r, xi, eta, eta_bar):
     p_tr, j2 = mean_j2(tau)
     sq = math.sqrt(j2)
     # cohesion and its slope at the start of the step
-    c_n = c0 + H * eps_p
-    if c_n > c_r:
-        h_n = H
-    else:
-        c_n = c_r
-        h_n = 0.0
+    c_n, h_n = _cohesion(c0, H, c_r, c_max, eps_p)
     phi_tr = sq + eta * p_tr - xi * c_n
     scale = sq + abs(eta * p_tr) + xi * c_n
     if phi_tr <= _YIELD_RTOL * scale:
@@ -182,12 +193,7 @@ def dp_return_coeffs_inplace(tau, eps_p, K, mu, c0, H, c_r, xi, eta, eta_bar):
         dgam = sq / mu
         p_tr -= K * eta_bar * dgam
         eps_1 = eps_p + xi * dgam
-        c_n = c0 + H * eps_1
-        if c_n > c_r:
-            h_n = H
-        else:
-            c_n = c_r
-            h_n = 0.0
+        c_n, h_n = _cohesion(c0, H, c_r, c_max, eps_1)
     den = K + alpha * beta * h_n
     if not den > 0.0:
         raise ValueError("Drucker-Prager apex: K + alpha beta H <= 0; "

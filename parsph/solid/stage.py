@@ -35,7 +35,7 @@ from parsph.solid.boundary import initial_velocity, velocity_masks
 from parsph.solid.update import CAM_CLAY, C, elastic_energy, material_table, stress_terms, \
     update_particles, wave_speed
 
-TRIAXIAL_COLUMNS = ("axial_strain", "p_eff", "q", "spec_volume", "M")
+TRIAXIAL_COLUMNS = ("axial_strain", "p_eff", "q", "spec_volume", "M", "sigma_axial")
 
 #: Skin of the solids' wall-contact lists, in particle spacings (:meth:`TLSPH._contact`):
 #: they are searched again once a solid has moved this far. Up to the skin a list holds
@@ -60,7 +60,16 @@ class TLSPH:
             p.add_field(name)
         p.add_field("solid_init", (), np.uint8)
         self.num = ctx.scene.solid
-        self.tab = material_table(ctx.materials)
+        # the internal length of the soils that soften or change phase: softening (over-
+        # non-local factor m) and trigger see the non-local strain (parsph.solid.regularise)
+        regular = [getattr(m, "regularised", False) for m in ctx.materials]
+        m_nl = [m.nonlocal_m if r and m.softens() else 0.0
+                for m, r in zip(ctx.materials, regular)]
+        self.tab = material_table(ctx.materials, m_nl)
+        self.nl_strain = None
+        self.output_fields = ()
+        if any(regular):
+            self._init_nonlocal(ctx, regular)
         self.rho0_of = np.ascontiguousarray(self.tab[:, C["rho0"]])
         self.has_cam_clay = bool(np.any(self.tab[:, C["model"]] == CAM_CLAY))
         self.has_walls = bool(ctx.scene.walls)
@@ -73,12 +82,36 @@ class TLSPH:
         #: size -> float64 memory idle during predict() or None (set by a coupled stage)
         self.scratch = lambda size: None
         self.stats_columns = ("solid_plastic", "solid_contacts", "elastic_energy")
+        if self.nl_strain is not None:
+            self.stats_columns += ("nonlocal_iterations", "wall_s_nonlocal")
         if self.num.triaxial_csv:
             self.stats_columns += TRIAXIAL_COLUMNS
         self._stats = {}
         self._walls = None  # the wall-contact lists (_contact)
 
     # ------------------------------------------------------------------ set-up
+    def _init_nonlocal(self, ctx, regular) -> None:
+        """The non-local plastic strain of the regularised soils (fields and system)."""
+        from parsph.solid.regularise import NonlocalStrain
+
+        p = ctx.particles
+        ell = [m.internal_length if r else 0.0 for m, r in zip(ctx.materials, regular)]
+        self.nl_strain = NonlocalStrain(ctx.comm, regular, ell, p)
+        self.output_fields = ("eps_p_nl",)
+        self._nl_total = None  # regularised rows of the last build (all ranks)
+
+    def _setup_nonlocal(self, ctx) -> None:
+        """Collective: the non-local system on this set of solid rows; solved again when
+        the rows changed (a phase change), or on a fresh run; a restarted run keeps the
+        checkpoint's average."""
+        nl = self.nl_strain
+        nl.build(ctx, self.vol, self.sel, self.fp)
+        total = global_sum(ctx.comm, nl.n_rows)
+        changed = total != self._nl_total if self._nl_total is not None else not ctx.restarted
+        self._nl_total = total
+        if changed:
+            nl.solve(ctx, self.vol)
+
     def _masks(self, ctx):
         p = ctx.particles
         self.sel = np.ascontiguousarray(p["phase"] == PHASE_SOLID)
@@ -114,6 +147,8 @@ class TLSPH:
                                               self.num.correction_floor, p["L"])
         self._stats["correction_clamped"] = global_sum(ctx.comm, clamped)
         self.fp = kernels.pair_factors(p["X"], self.sel, n, ctx.indptr, ctx.indices, ctx.h, dim)
+        if self.nl_strain is not None:
+            self._setup_nonlocal(ctx)
         self._stress_terms(ctx)
         ctx.update_halo(["v", "L"])
 
@@ -219,9 +254,11 @@ class TLSPH:
         fdot = np.zeros((n, 3, 3))
         kernels.velocity_gradient(self._pad(v), X, self.vol, p["L"], fp, *args, fdot)
         failed = np.zeros(n, dtype=np.uint8)
+        nl = self.nl_strain
         bad, plastic = update_particles(self.tab, p["material"], sel, n, dt, fdot, p["F"],
                                         p["tau"], p["eps_e"], p["eps_p"], p["p_c"],
-                                        p["porosity"], p["p"], failed, dim)
+                                        p["porosity"], p["p"], failed, dim,
+                                        p["eps_p" if nl is None else "eps_p_shift"])
         # coupled scenes with phase change: a failed particle becomes fluid (docs/coupling.md)
         self.failed = np.flatnonzero(failed)
         error = None
@@ -231,12 +268,20 @@ class TLSPH:
                 f"map failed at t = {ctx.time:.6g} s (rank {ctx.comm.rank}); reduce solid.cfl "
                 f"or run.dt, or raise solid.jst_eps4")
         raise_if_any(ctx.comm, error)
+        if nl is not None:
+            nl.iterations = 0
+            if nl.due(ctx):
+                nl.solve(ctx, self.vol)
         kernels.drift(p["x"], v, sel, n, dt, dim)
         self._stress_terms(ctx)
         if not stats:
             return
         self._stats["solid_plastic"] = global_sum(ctx.comm, plastic)
         self._stats["elastic_energy"] = self._elastic_energy(ctx)
+        if self.nl_strain is not None:
+            self._stats["nonlocal_iterations"] = self.nl_strain.iterations
+            self._stats["wall_s_nonlocal"] = self.nl_strain.wall_s
+            self.nl_strain.wall_s = 0.0
         if self.num.triaxial_csv:
             self._triaxial(ctx, dt)
 
@@ -319,11 +364,14 @@ class TLSPH:
         mats = [m for m in ctx.materials if hasattr(m, "critical_state_ratio")]
         M = mats[0].critical_state_ratio if mats else float("nan")
         row = {"axial_strain": 1.0 - sums[2] / sums[0], "p_eff": pe, "q": q,
-               "spec_volume": sums[3] / sums[0], "M": M}
+               "spec_volume": sums[3] / sums[0], "M": M, "sigma_axial": -sigma[ax, ax]}
         self._stats.update(row)
 
     def finish(self, ctx) -> None:
-        """Write ``DIR/triaxial.csv`` from stats.csv at the end of a triaxial run."""
+        """Write ``DIR/triaxial.csv`` from stats.csv at the end of a triaxial run; free the
+        non-local system."""
+        if self.nl_strain is not None:
+            self.nl_strain.destroy()
         if "p_eff" in self.stats_columns and ctx.comm.rank == 0:
             from parsph.solid.triaxial import write_from_stats
 

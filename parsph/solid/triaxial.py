@@ -3,7 +3,9 @@
 The TLSPH stage computes the specimen averages every step when ``solid.triaxial_csv`` is
 true and puts them in ``stats.csv`` (columns ``axial_strain, p_eff, q, spec_volume, M``);
 it also writes ``DIR/triaxial.csv`` directly when the driver tells the stage its output
-directory (``ctx.out``). This module writes the same file from ``stats.csv``::
+directory (``ctx.out``); ``sigma_axial`` (the specimen's mean axial Cauchy stress,
+compression positive, Pa: the platen force per area of a specimen in equilibrium) is
+in stats.csv only. This module writes the same file from ``stats.csv``::
 
     python -m parsph.solid.triaxial DIR
 

@@ -26,22 +26,22 @@ from parsph.solid.drucker_prager import dp_params, dp_return_coeffs_inplace
 from parsph.solid.hencky import (eps_from_tau_kmu, hencky_tau_into, lame_from_young,
                                  nominal_stress_into, trial_state_into)
 from parsph.core.tensor import det3, inv3_into
+from parsph.scene.materials import CamClay, DruckerPrager, Hencky
 
 HENCKY, DRUCKER_PRAGER, CAM_CLAY = 0, 1, 2
 #: Columns of the material table.
 COLS = ("model", "K", "mu", "rho0", "c0", "H", "c_r", "xi", "eta", "eta_bar", "kappa",
-        "lam", "M", "nu", "porosity_update")
+        "lam", "M", "nu", "porosity_update", "m_nl")
 C = {name: k for k, name in enumerate(COLS)}
 
 
-def material_table(materials) -> np.ndarray:
+def material_table(materials, m_nl=None) -> np.ndarray:
     """One row of parameters per material (scene order); unused entries are 0.
 
     For Cam-Clay K and mu are pressure dependent and computed per particle; the row holds
-    nu, kappa, lambda and M.
+    nu, kappa, lambda and M. ``m_nl``: the over-non-local factor m of each Drucker-Prager
+    material (:mod:`parsph.solid.regularise`; 0 = the paper's local softening).
     """
-    from parsph.scene.materials import CamClay, DruckerPrager, Hencky
-
     tab = np.zeros((max(len(materials), 1), len(COLS)))
     for k, mat in enumerate(materials):
         row = tab[k]
@@ -64,7 +64,10 @@ def material_table(materials) -> np.ndarray:
             row[C["kappa"]], row[C["lam"]] = mat.kappa, mat.lam
             row[C["M"]] = mat.critical_state_ratio
             row[C["porosity_update"]] = 1.0  # v = 1/(1-n) drives the Cam-Clay moduli
+    if m_nl is not None:
+        tab[: len(materials), C["m_nl"]] = m_nl
     return tab
+
 
 
 @njit(cache=True, error_model="numpy")
@@ -119,8 +122,14 @@ def elastic_energy(tab, material, sel, n, vol, eps_e):
 
 @njit(cache=True, error_model="numpy")
 def update_particles(tab, material, sel, n, dt, Fdot, F, tau, eps_e, eps_p, p_c,
-                     porosity, pressure, failed, dim):
-    """Advance F, porosity and stress of the owned solid particles by one step.
+                     porosity, pressure, failed, dim, shift):
+    r"""Advance F, porosity and stress of the owned solid particles by one step.
+
+    A Drucker-Prager soil with an over-non-local factor m > 0
+    (:mod:`parsph.solid.regularise`) softens with :math:`\hat\kappa = \kappa^{\beta+1} +
+    m(\tilde\kappa^s - \kappa^s)`, s the step of the last non-local solve (``shift``
+    holds :math:`\tilde\kappa^s - \kappa^s`): its cohesion is :math:`c_0 + H\hat\kappa`,
+    at most :math:`c_0`. With m = 0 nothing changes.
 
     Parameters
     ----------
@@ -145,7 +154,9 @@ def update_particles(tab, material, sel, n, dt, Fdot, F, tau, eps_e, eps_p, p_c,
     failed : ndarray of uint8 (n,)
         Set to 1 for the particles with det F <= 0 or a failed return (left unchanged).
     dim : int
-
+    shift : ndarray (N,)
+        :math:`\tilde\kappa - \kappa` at the last non-local solve (read where m > 0;
+        any array of N values if no material has m > 0).
     Returns
     -------
     bad : int
@@ -189,6 +200,7 @@ def update_particles(tab, material, sel, n, dt, Fdot, F, tau, eps_e, eps_p, p_c,
         for a in range(3):
             for b in range(3):
                 F[i, a, b] = Fn[a, b]
+        m_nl = row[15]
         if model == CAM_CLAY:
             vs = 1.0 / (1.0 - porosity[i])
             mcc_trial_into(tau[i], dF, vs, row[10], row[13], work)
@@ -217,8 +229,13 @@ def update_particles(tab, material, sel, n, dt, Fdot, F, tau, eps_e, eps_p, p_c,
             trial_state_into(dF, eps_e[i], work)
             hencky_tau_into(work, K, mu, tau[i])
             if model == DRUCKER_PRAGER:
-                e_new, flag = dp_return_coeffs_inplace(tau[i], eps_p[i], K, mu, row[4], row[5],
-                                                       row[6], row[7], row[8], row[9])
+                c0 = row[4]
+                c_max = math.inf
+                if m_nl > 0.0:  # softening on the over-non-local strain, c <= c0
+                    c0 += row[5] * m_nl * shift[i]
+                    c_max = row[4]
+                e_new, flag = dp_return_coeffs_inplace(tau[i], eps_p[i], K, mu, c0, row[5],
+                                                       row[6], row[7], row[8], row[9], c_max)
                 if flag > 0:
                     plastic += 1
                     eps_p[i] = e_new

@@ -92,5 +92,14 @@ def layout(stages) -> str:
 
 
 def uses_petsc(stages) -> bool:
-    """True if any stage solves an implicit system (the only case that imports solvers)."""
+    """True if any stage solves the fluid's implicit systems on PETSc."""
     return any(s.name in ("iisph", "coupled") for s in stages)
+
+
+def needs_petsc(stages, scene) -> bool:
+    """True if the step solves any system on PETSc (the only case that imports solvers):
+    the fluid's, or the non-local plastic strain of a regularised soil
+    (:mod:`parsph.solid.regularise`)."""
+    return uses_petsc(stages) or (
+        any(s.name == "tlsph" for s in stages)
+        and any(getattr(m, "regularised", False) for m in scene.materials.values()))

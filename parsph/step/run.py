@@ -38,7 +38,7 @@ from parsph.core.particles import ParticleSet
 from parsph.errors import ParsphError
 from parsph.scene.budget import check_budget
 from parsph.scene.geometry import generate
-from parsph.step.pipeline import layout, plan, uses_petsc
+from parsph.step.pipeline import layout, needs_petsc, plan, uses_petsc
 from parsph.step.refresh import check_state, refresh, timed
 from parsph.step.stats import energy_budget, kinetic_energy, stats_columns, stats_row
 
@@ -178,7 +178,7 @@ def _build(scene, out, comm, petsc_args, restart):
         ctx.rcb = ck.rcb  # None at another rank count: re-partitioned below
         ctx.rcb_ref = ck.rcb_ref  # mixed layout: the solids' partition (fixed by X)
         ctx.rcb_wall = ck.rcb_wall  # and the partition of the walls
-    if uses_petsc(specs):  # only then is petsc4py imported
+    if needs_petsc(specs, scene):  # only then is petsc4py imported
         import solvers
 
         solvers.init(list(petsc_args))
