@@ -224,8 +224,10 @@ def test_phase_change_of_every_particle_at_once(comm, mpi_tmp_path):
     p = ctx.particles
     n_solid = global_sum(comm, int((p["phase"][:ctx.n_owned] == 0).sum()))
     mass0, mom0, ids0 = totals()
-    p["eps_p"][: ctx.n_owned][p["phase"][: ctx.n_owned] == 0] = 2.0
+    every = np.where(p["phase"][: ctx.n_owned] == 0, 2.0, 0.0)
+    stage._trigger_strain = lambda ctx: every  # past the limit, whatever the trigger's rule
     stage._phase_change(ctx)
+    del stage._trigger_strain
     assert global_sum(comm, int((p["phase"][:ctx.n_owned] == 0).sum())) == 0
     assert stage.stats()["n_fluidised"] == n_solid
     assert stage.view.n == 0 and len(stage.view.ctx.indices) == 0
@@ -360,8 +362,10 @@ def test_phase_change_at_a_rank_boundary(comm, mpi_tmp_path):
     L_before = {int(i): sp["L"][k].copy() for k, i in enumerate(own)}
     p = ctx.particles
     m_tot = global_sum(comm, p["m"][:ctx.n_owned].sum())
-    p["eps_p"][: ctx.n_owned][p["id"][: ctx.n_owned] == pick] = 20.0
+    past = np.where(p["id"][: ctx.n_owned] == pick, 20.0, 0.0)
+    stage._trigger_strain = lambda ctx: past  # past the limit, whatever the trigger's rule
     stage._phase_change(ctx)
+    del stage._trigger_strain
     view = stage.view
     sp = view.ctx.particles
     assert pick not in sp["id"]  # in no list, owned or halo, on either rank

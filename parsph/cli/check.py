@@ -53,10 +53,29 @@ def check(comm, scene) -> str:
         f"({est['bytes_per_particle']} B per particle)"
         + (f"; this node has {est['node_memory'] / 2**30:.1f} GiB" if est["node_memory"] else ""),
     ]
+    lines += _length_lines(scene)
     lines += _probe_lines(scene)
     lines += [f"warning: {text}" for text in geometry_warnings(scene)]
     return "\n".join(lines)
 
+
+
+def _length_lines(scene) -> list[str]:
+    """One line per soil: its internal length and what sees it (docs/regularisation.md)."""
+    out = []
+    d = scene.domain.particle_size
+    trigger = scene.phase_change.eps_p_limit > 0.0
+    for name, m in scene.materials.items():
+        if not hasattr(m, "regularisation"):
+            continue
+        if not m.regularised:
+            out.append(f"  {name:12s} local softening and trigger (the paper's rule)")
+            continue
+        sees = (["softening (m = %g)" % m.nonlocal_m] if m.softens() else []) \
+            + (["phase-change trigger"] if trigger else [])
+        out.append(f"  {name:12s} l = {m.internal_length:g} m = {m.internal_length / d:.2g} d: "
+                   + " and ".join(sees))
+    return ["internal length (docs/regularisation.md):"] + out if out else []
 
 
 def _probe_lines(scene) -> list[str]:

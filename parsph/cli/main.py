@@ -72,7 +72,8 @@ def _parser() -> _Parser:
 
 
 def cmd_study(comm, args, petsc) -> int:
-    from parsph.cli.study import convergence_order, extra_columns, parse_vary, study
+    from parsph.cli.study import (convergence_order, extra_columns, parse_vary, quantity_columns,
+                                  study)
 
     rows = study(comm, args.scene, args.out, parse_vary(args.vary), args.overrides, petsc)
     if comm.rank == 0:
@@ -84,11 +85,37 @@ def cmd_study(comm, args, petsc) -> int:
             print(f"{r['particle_size']:14.4g} {r['cfl']:8.3g} {r['ksp_rtol']:9.2g} "
                   + "".join(f"{r[k]:>{max(len(k), 9)}.3g} " for k in extra)
                   + f"{r['steps']:7d} {r['wall_s']:9.3f} {r['error']:10.3e}")
-        order = convergence_order([r["particle_size"] for r in rows], [r["error"] for r in rows])
-        print(f"observed order of convergence in the particle size: {order:.2f}")
+        quantities = quantity_columns(rows)
+        if quantities:
+            _print_quantities(rows, quantities, args.out)
+        else:
+            order = convergence_order([r["particle_size"] for r in rows],
+                                      [r["error"] for r in rows])
+            print(f"observed order of convergence in the particle size: {order:.2f}")
         print(f"wrote {os.path.join(args.out, 'study.csv')} and "
               f"{os.path.join(args.out, 'study.png')}")
     return EXIT_OK
+
+
+def _print_quantities(rows, quantities, out) -> None:
+    """The measured quantities per run and, from DIR/richardson.csv, their values
+    extrapolated to d = 0."""
+    import csv
+
+    print("quantities: " + ", ".join(f"{k[2:]}" for k in quantities))
+    for r in rows:
+        print(f"  d = {r['particle_size']:.4g} m: "
+              + ", ".join(f"{r[k]:.4g}" for k in quantities) + f" ({r['wall_s']:.1f} s)")
+    path = os.path.join(out, "richardson.csv")
+    if not os.path.exists(path):
+        return
+    with open(path) as fh:
+        for fit in csv.DictReader(fh):
+            vals = {k: float(v) for k, v in fit.items() if k != "quantity"}
+            print(f"  {fit['quantity']}: finest {vals['finest']:.4g}, changes "
+                  f"{vals['previous_change']:+.3g} then {vals['last_change']:+.3g}, order "
+                  f"{vals['order']:.2f}, at d = 0: {vals['extrapolated']:.4g} "
+                  f"+- {vals['error_estimate']:.2g}")
 
 
 def _is_petsc_option(tok: str) -> bool:

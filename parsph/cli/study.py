@@ -10,6 +10,13 @@ Varied settings are given as ``name=v1,v2,...``; the names ``particle_size``, ``
 ``ksp_rtol`` are short for the scene keys in :data:`ALIASES`, any other name is taken as
 a dotted scene key. Without any, the study runs the scene's default sweep, the particle
 sizes of its ``[study] particle_sizes`` (every built-in scene declares three).
+
+A scene without a known answer (a landslide: ``slope_failure``) is judged by its
+registered quantities (run-out, fluidised volume, time to rest;
+:func:`parsph.verify.registry.quantities`): each is extrapolated to d = 0 from the three
+finest sizes (Richardson, :func:`parsph.verify.registry.richardson`), written to
+``DIR/richardson.csv`` with its observed order and error estimate, and each run's error
+is its headline quantity's distance from the extrapolated value.
 """
 from __future__ import annotations
 
@@ -130,12 +137,14 @@ def study(comm, scene_name: str, out: str, vary: dict | None = None, overrides=(
         (when ``vary`` is empty) or no setting of a varied name.
     """
     from decomposition.comm import on_root
-    from parsph.verify.registry import error_of, reference_of
+    from parsph.verify.registry import error_of, quantities_of, reference_of
     from parsph.step.run import run
     from parsph.scene.loader import load_scene
 
     base = on_root(comm, load_scene, scene_name, list(overrides))
-    reference_of(base)  # before any run: a scene without a known answer is refused
+    measure = quantities_of(base)
+    if measure is None:
+        reference_of(base)  # before any run: a scene without a known answer is refused
     if not vary:
         vary = default_sweep(base)
         log.info("study of '%s': its default sweep, particle_size = %s m (--vary overrides)",
@@ -148,9 +157,13 @@ def study(comm, scene_name: str, out: str, vary: dict | None = None, overrides=(
         scene = on_root(comm, load_scene, scene_name, list(overrides) + sets)
         run_dir = os.path.join(out, "runs", f"{i:03d}")
         summary = run(scene, run_dir, comm=comm, petsc_args=petsc_args, progress=False)
-        err = on_root(comm, error_of, scene, run_dir)
         row = {"particle_size": scene.domain.particle_size, "ranks": comm.size,
-               "steps": summary["steps"], "wall_s": summary["wall_s"], "error": err}
+               "steps": summary["steps"], "wall_s": summary["wall_s"]}
+        if measure is None:
+            row["error"] = on_root(comm, error_of, scene, run_dir)
+        else:
+            row["error"] = float("nan")
+            row.update({f"q_{k}": v for k, v in on_root(comm, measure, scene, run_dir).items()})
         for name in ("cfl", "ksp_rtol"):
             try:
                 row[name] = _current(scene, _key_for(scene, name))
@@ -159,31 +172,72 @@ def study(comm, scene_name: str, out: str, vary: dict | None = None, overrides=(
         for name in extra_columns(names):  # any other varied key: a column of its own
             row[name] = _current(scene, keys[name])
         rows.append(row)
+    extrapolated = extrapolate(rows, names) if measure is not None else []
     if comm.rank == 0:
-        _write(out, rows)
+        _write(out, rows, extrapolated)
     return broadcast(comm, rows)
+
+
+def quantity_columns(rows: list) -> list[str]:
+    """The measured quantities' columns (``q_NAME``), headline first."""
+    return [k for k in (rows[0] if rows else {}) if k.startswith("q_")]
+
+
+def extrapolate(rows: list, names) -> list[dict]:
+    """Per quantity, :func:`parsph.verify.registry.richardson` over the particle sizes
+    (only when the particle size alone is varied); sets each row's ``error``, the
+    headline quantity's relative distance from its extrapolated value (or from the
+    finest run's when no order could be read)."""
+    from parsph.verify.registry import richardson
+
+    if list(names) != ["particle_size"]:
+        return []
+    sizes = [r["particle_size"] for r in rows]
+    out = []
+    for key in quantity_columns(rows):
+        fit = richardson(sizes, [r[key] for r in rows])
+        fit["quantity"] = key[2:]
+        out.append(fit)
+    if out:
+        head = out[0]
+        ref = head["extrapolated"] if math.isfinite(head["extrapolated"]) else head["finest"]
+        for r in rows:
+            r["error"] = abs(r[quantity_columns(rows)[0]] - ref) / abs(ref) if ref else \
+                float("nan")
+    return out
+
+
+RICHARDSON_COLUMNS = ("quantity", "finest", "previous_change", "last_change", "order",
+                      "extrapolated", "error_estimate")
 
 
 def extra_columns(names) -> list[str]:
     """The varied names that are not among :data:`COLUMNS` (dotted scene keys, e.g.
     ``fluid.ppe_density_error``): study.csv and the table get a column for each."""
-    return [n for n in names if n not in COLUMNS]
+    return [n for n in names if n not in COLUMNS and not n.startswith("q_")]
 
 
 def table_columns(rows: list) -> list[str]:
     """The columns of study.csv: :data:`COLUMNS` with the varied dotted keys after
-    ``ksp_rtol``."""
-    return COLUMNS[:3] + extra_columns(rows[0] if rows else []) + COLUMNS[3:]
+    ``ksp_rtol`` and the measured quantities at the end."""
+    return COLUMNS[:3] + extra_columns(rows[0] if rows else []) + COLUMNS[3:] \
+        + quantity_columns(rows)
 
 
-def _write(out: str, rows: list) -> None:
+def _write(out: str, rows: list, extrapolated=()) -> None:
     columns = table_columns(rows)
     with open(os.path.join(out, "study.csv"), "w", newline="") as fh:
         w = csv.DictWriter(fh, columns)
         w.writeheader()
         for r in rows:
             w.writerow({k: r[k] for k in columns})
-    plot(rows, os.path.join(out, "study.png"))
+    if extrapolated:
+        with open(os.path.join(out, "richardson.csv"), "w", newline="") as fh:
+            w = csv.DictWriter(fh, RICHARDSON_COLUMNS)
+            w.writeheader()
+            for fit in extrapolated:
+                w.writerow({k: fit[k] for k in RICHARDSON_COLUMNS})
+    plot(rows, os.path.join(out, "study.png"), extrapolated)
 
 
 def point_labels(rows: list) -> list[str]:
@@ -194,24 +248,52 @@ def point_labels(rows: list) -> list[str]:
     return [", ".join(f"{short[k]}={r[k]:.3g}" for k in varied) for r in rows]
 
 
-def plot(rows: list, path: str) -> None:
+def plot(rows: list, path: str, extrapolated=()) -> None:
+    """``study.png``: error against wall time (log axes, the Pareto front marked); with
+    extrapolated quantities, each one's relative distance from its value at d = 0
+    against wall time, and the quantities against d beside."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
     wall = np.array([r["wall_s"] for r in rows])
-    err = np.array([r["error"] for r in rows])
-    front = pareto(wall, err)
-    fig = Figure(figsize=(6, 4.5))
+    fig = Figure(figsize=(11 if extrapolated else 6, 4.5))
     FigureCanvasAgg(fig)
-    ax = fig.add_subplot()
-    ax.loglog(wall, err, "o", color="0.6", label="runs")
-    order = np.argsort(wall[front])
-    ax.loglog(wall[front][order], err[front][order], "o-", color="C3", label="Pareto front")
-    for text, w, e in zip(point_labels(rows), wall, err):
-        ax.annotate(text, (w, e), fontsize=7, textcoords="offset points", xytext=(3, 3))
+    ax = fig.add_subplot(1, 2 if extrapolated else 1, 1)
+    if extrapolated:
+        for k, fit in enumerate(extrapolated):
+            ref = fit["extrapolated"] if math.isfinite(fit["extrapolated"]) else fit["finest"]
+            err = np.array([abs(r["q_" + fit["quantity"]] - ref) / abs(ref) if ref else
+                            np.nan for r in rows])
+            ok = err > 0
+            ax.loglog(wall[ok], err[ok], "o-", color=f"C{k}", label=fit["quantity"])
+        ax.set_ylabel("relative distance from the value at d = 0 (-)")
+    else:
+        err = np.array([r["error"] for r in rows])
+        front = pareto(wall, err)
+        ax.loglog(wall, err, "o", color="0.6", label="runs")
+        order = np.argsort(wall[front])
+        ax.loglog(wall[front][order], err[front][order], "o-", color="C3", label="Pareto front")
+        for text, w, e in zip(point_labels(rows), wall, err):
+            ax.annotate(text, (w, e), fontsize=7, textcoords="offset points", xytext=(3, 3))
+        ax.set_ylabel("error (-)")
     ax.set_xlabel("wall time (s)")
-    ax.set_ylabel("error (-)")
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend()
+    ax.legend(fontsize=8)
+    if extrapolated:
+        d = np.array([r["particle_size"] for r in rows])
+        ax2 = fig.add_subplot(1, 2, 2)
+        for k, fit in enumerate(extrapolated):
+            q = np.array([r["q_" + fit["quantity"]] for r in rows])
+            scale = abs(fit["finest"]) or 1.0
+            ax2.plot(d, q / scale, "o-", color=f"C{k}", label=fit["quantity"])
+            if math.isfinite(fit["extrapolated"]):
+                ax2.errorbar([0.0], [fit["extrapolated"] / scale],
+                             yerr=[fit["error_estimate"] / scale], fmt="s", color=f"C{k}",
+                             capsize=3)
+        ax2.set_xlabel("particle size d (m)")
+        ax2.set_ylabel("quantity / its finest value (-); square: d = 0")
+        ax2.set_xlim(left=-0.05 * d.max())
+        ax2.grid(True, alpha=0.3)
+        ax2.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=110)

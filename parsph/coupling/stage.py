@@ -52,7 +52,7 @@ VIEW_STATE = ("F", "tau", "eps_e", "lapv")
 #: coupling's own (the fluid's force on a solid is read from the main set). Copied into
 #: the view they had cost 160 bytes per solid particle.
 MAIN_ONLY = ("nu", "v_star", "v_ghost", "free_surface", "wall_slip", "fluid_row", "p_ppe",
-             "ppe_band", "fluidised", "inv_mass", "a_self", "fsi_force")
+             "ppe_band", "fluidised", "inv_mass", "a_self", "fsi_force", "eps_trigger")
 
 #: Fields of the main set no stage reads on its current-configuration halo rows: the
 #: solid's state (the TLSPH step reads it in the view, on the view's reference halo) and
@@ -60,7 +60,7 @@ MAIN_ONLY = ("nu", "v_star", "v_ghost", "free_surface", "wall_slip", "fluid_row"
 #: migrate) 375 of a 3D row's 613 bytes, which had been 40 % of the 2-rank halo
 #: exchange's time (docs/performance.md).
 HALO_SKIP = VIEW_STATE + ("X", "eps_p", "p_c", "porosity", "modulus", "ref_count0",
-                          "solid_init", "fluidised", "ppe_band") + NONLOCAL_STATE
+                          "solid_init", "fluidised", "ppe_band", "eps_trigger") + NONLOCAL_STATE
 
 #: stats.csv columns of the coupling; ``fsi_force_*`` (N, N/m in 2D) is the net force of
 #: the fluid on the solid (eq. (45), pressure and viscous parts) before constraints.
@@ -80,8 +80,7 @@ class Coupled:
 
         self.solid = TLSPH(ctx)  # adds the solid fields to the main set
         self.solid_state = SOLID_STATE + tuple(k for k in NONLOCAL_STATE if k in ctx.particles)
-        # the phase change's trigger: the non-local plastic strain where soils have one
-        self.trigger = "eps_p_nl" if "eps_p_nl" in ctx.particles else "eps_p"
+        self.window = self._window(ctx)
         for name in VIEW_FIELDS:  # but these live in the solid's view only
             ctx.particles.data.pop(name, None)
         self.fluid = IISPH(ctx)  # adds the fluid fields
@@ -106,7 +105,7 @@ class Coupled:
             else fluids[0].density
         self.target_rho0 = self.rho_f * lattice_density_ratio(ctx.h / ctx.d, ctx.dim)
         self.output_fields = tuple(self.fluid.output_fields) + ("fluidised",) \
-            + tuple(self.solid.output_fields)
+            + tuple(self.solid.output_fields) + (("eps_trigger",) if self.window else ())
         self.stats_columns = tuple(self.solid.stats_columns) + tuple(self.fluid.stats_columns) \
             + ("n_coupled",) + STATS + tuple(f"fsi_force_{a}" for a in "xyz"[:ctx.dim])
         ctx.halo_skip = HALO_SKIP
@@ -118,6 +117,25 @@ class Coupled:
         self._dt_solid = math.inf
 
     # -- set-up ------------------------------------------------------------------
+    def _window(self, ctx):
+        """The regularised trigger (:class:`parsph.solid.regularise.WindowTrigger`) if
+        some soil that changes phase has an internal length, else None; adds the
+        ``eps_trigger`` field (written to every frame)."""
+        from parsph.solid.regularise import WINDOW_IN_ELL, WindowTrigger
+        from parsph.solid.update import C as COL, CAM_CLAY
+
+        if ctx.scene.phase_change.eps_p_limit <= 0.0:
+            return None
+        ell = [m.internal_length if getattr(m, "regularised", False) else 0.0
+               for m in ctx.materials]
+        if not any(ell):
+            return None
+        tab = self.solid.tab
+        factor = [1.0 / math.sqrt(3.0) if int(tab[k, COL["model"]]) == CAM_CLAY
+                  else tab[k, COL["xi"]] for k in range(len(ctx.materials))]
+        ctx.particles.add_field("eps_trigger")
+        return WindowTrigger(ctx.comm, [WINDOW_IN_ELL * e for e in ell], factor)
+
     def _build_view(self, ctx) -> None:
         """The solid's view of the owned solid rows: its state from the main set, the
         tensors of :data:`VIEW_STATE` from the last view where the main set has them not
@@ -128,6 +146,8 @@ class Coupled:
         first = sp["ref_count0"][:ns] == 0
         sp["ref_count0"][:ns][first] = count[first]
         self.solid.setup(self.view.ctx)
+        if self.window is not None:
+            self.window.build(self.view.ctx, self.solid.sel)
         self.view.write_back(self.solid_state + ("ref_count0",))
         for name in VIEW_STATE:
             ctx.particles.data.pop(name, None)
@@ -292,11 +312,25 @@ class Coupled:
         self._stats.update(wall_s_solid=t_solid, wall_s_fluid=t_fluid, solid_substeps=k,
                            wall_s_phase_change=time.perf_counter() - t0)
 
+    def _trigger_strain(self, ctx) -> np.ndarray:
+        """The main set's owned rows' strain the phase change compares with its limit: the
+        window strain of the regularised soils (:class:`parsph.solid.regularise.
+        WindowTrigger`), the accumulated plastic strain of the others (section 3.3)."""
+        p, n = ctx.particles, ctx.n_owned
+        if self.window is None:
+            return p["eps_p"][:n]
+        view = self.view
+        value = np.zeros(view.n)
+        self.window.strain(view.ctx, self.limit, value)
+        p["eps_trigger"][:n] = 0.0
+        p["eps_trigger"][view.rows] = value
+        return p["eps_trigger"][:n]
+
     def _phase_change(self, ctx) -> None:
         """Section 3.3: solid rows past the plastic-strain limit become fluid."""
         p, n = ctx.particles, ctx.n_owned
         if self.limit > 0.0:
-            past = (p["phase"][:n] == PHASE_SOLID) & (p[self.trigger][:n] > self.limit)
+            past = (p["phase"][:n] == PHASE_SOLID) & (self._trigger_strain(ctx) > self.limit)
             failed = self.view.rows[self.solid.failed]  # det F <= 0: it has failed
             past[failed] = True
             flag = np.flatnonzero(past)

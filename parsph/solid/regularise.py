@@ -52,11 +52,14 @@ local: the average reaches it only through the trigger (docs/regularisation.md).
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
 from decomposition.numbering import global_offset
 from decomposition.reduce import global_max
+from parsph.core.tensor import eigh3, inv3_into
 
 @njit(cache=True, error_model="numpy")
 def helmholtz_block(reg, vol, ell2, n, indptr, indices, fp, gid):
@@ -226,7 +229,7 @@ class NonlocalStrain:
         return global_max(ctx.comm, change) > SOLVE_TOLERANCE
 
     def solve(self, ctx, vol) -> None:
-        """Collective: :math:`\tilde\kappa = (I - \ell^2\nabla^2)^{-1}\kappa` on the owned
+        r"""Collective: :math:`\tilde\kappa = (I - \ell^2\nabla^2)^{-1}\kappa` on the owned
         regularised rows (from their last values) and the shifts; the other owned rows
         get their own plastic strain and no shift."""
         import time
@@ -250,3 +253,141 @@ class NonlocalStrain:
         if self.system is not None:
             self.system.destroy()
             self.system = None
+
+
+@njit(cache=True, error_model="numpy")
+def window_strain(rows, indptr, indices, X, x, sel, R, dim, out):
+    r"""Shear strain of the deformation over a window of radius R in the reference
+    configuration, for each row of ``rows``: the deformation gradient fitted by weighted
+    least squares, :math:`\mathbf F = \mathbf B\mathbf M^{-1}`,
+    :math:`\mathbf M = \sum_j w_j \mathbf X_{ij}\otimes\mathbf X_{ij}`,
+    :math:`\mathbf B = \sum_j w_j \mathbf x_{ij}\otimes\mathbf X_{ij}` over the solid rows j
+    within R (:math:`w = (1 - r^2/R^2)^2`), then its logarithmic strain's shear measure
+    :math:`\sqrt{2\,\mathrm{dev}\,\mathbf e : \mathrm{dev}\,\mathbf e}` (the engineering
+    shear in simple shear). The window spans gaps the fluidised soil left, so it sees the
+    slip across them."""
+    M = np.zeros((3, 3))
+    B = np.zeros((3, 3))
+    Minv = np.zeros((3, 3))
+    F = np.zeros((3, 3))
+    C = np.zeros((3, 3))
+    R2 = R * R
+    for k in range(len(rows)):
+        i = rows[k]
+        M[:, :] = 0.0
+        B[:, :] = 0.0
+        cnt = 0
+        for p in range(indptr[k], indptr[k + 1]):
+            j = indices[p]
+            if j == i or not sel[j]:
+                continue
+            r2 = 0.0
+            for a in range(dim):
+                r2 += (X[j, a] - X[i, a]) ** 2
+            if r2 >= R2:
+                continue
+            w = (1.0 - r2 / R2) ** 2
+            cnt += 1
+            for a in range(dim):
+                for b in range(dim):
+                    M[a, b] += w * (X[j, a] - X[i, a]) * (X[j, b] - X[i, b])
+                    B[a, b] += w * (x[j, a] - x[i, a]) * (X[j, b] - X[i, b])
+        if cnt < 2 * dim:
+            out[k] = 0.0
+            continue
+        if dim == 2:
+            M[2, 2] = 1.0
+            B[2, 2] = 1.0
+        inv3_into(M, Minv)
+        for a in range(3):
+            for b in range(3):
+                s = 0.0
+                for c in range(3):
+                    s += B[a, c] * Minv[c, b]
+                F[a, b] = s
+        for a in range(3):
+            for b in range(3):
+                s = 0.0
+                for c in range(3):
+                    s += F[c, a] * F[c, b]
+                C[a, b] = s
+        lam, _ = eigh3(C)
+        e0 = 0.5 * math.log(max(lam[0], 1e-300))
+        e1 = 0.5 * math.log(max(lam[1], 1e-300))
+        e2 = 0.5 * math.log(max(lam[2], 1e-300))
+        mean = (e0 + e1 + e2) / 3.0
+        out[k] = math.sqrt(2.0 * ((e0 - mean) ** 2 + (e1 - mean) ** 2 + (e2 - mean) ** 2))
+
+
+#: The window of the phase-change trigger, in internal lengths: its radius.
+WINDOW_IN_ELL = 2.0
+
+
+class WindowTrigger:
+    r"""The phase change's trigger strain over a window of the reference configuration
+    (docs/regularisation.md): for each solid row that has yielded, the shear strain of
+    the deformation gradient fitted over the solid within R = :data:`WINDOW_IN_ELL` ℓ of
+    its reference position (:func:`window_strain`), in the units of its material's
+    accumulated plastic strain (``factor``: ξ for Drucker–Prager, whose ε̄ᵖ grows by ξ
+    per unit of plastic shear; 1/√3 for modified Cam–Clay's von Mises measure).
+
+    The window reaches over the gaps the fluidised soil leaves, so a particle next to a
+    fluidised band sees the slip across it: the zone that fluidises around a slip surface
+    is set by R, not by the particle size.
+
+    Parameters
+    ----------
+    comm : mpi4py communicator
+    radius_of, factor_of : ndarray (n_materials,)
+        R (m) and the strain factor per material (R = 0: the material's rows keep the
+        local trigger, their accumulated plastic strain).
+    """
+
+    #: A row is a candidate once its accumulated plastic strain passes this fraction of
+    #: the limit: elastic soil does not change phase.
+    CANDIDATE = 2e-3
+
+    def __init__(self, comm, radius_of, factor_of):
+        self.comm = comm
+        self.radius_of = np.asarray(radius_of, float)
+        self.factor_of = np.asarray(factor_of, float)
+        self.R = float(self.radius_of.max()) if len(self.radius_of) else 0.0
+        self.halo = None
+        self._lists = None
+
+    def build(self, vctx, sel) -> None:
+        """Collective: the window's halo (the solid rows within R of this rank's, in X) and
+        their fixed fields; after every change of the solid's rows."""
+        from decomposition.halo import Halo
+
+        p, n = vctx.particles, vctx.particles.n_owned
+        self.halo = Halo.build(vctx.comm, vctx.rcb, p["X"][:n], self.R, vctx.box)
+        fixed = self.halo.exchange({"X": p["X"][:n], "sel": sel[:n].astype(np.uint8)},
+                                   shift_fields=("X",))
+        self.X = np.ascontiguousarray(np.concatenate([p["X"][:n], fixed["X"]]))
+        self.sel = np.concatenate([sel[:n], fixed["sel"].astype(bool)])
+        self._lists = None
+
+    def strain(self, vctx, limit, out) -> None:
+        """Collective: the trigger strain of the owned solid rows into ``out`` (n_owned):
+        the window strain of the candidates (:data:`CANDIDATE`), their own accumulated
+        plastic strain where R = 0, else 0."""
+        p, n = vctx.particles, vctx.particles.n_owned
+        material = np.maximum(p["material"][:n], 0)
+        R_row = self.radius_of[material]
+        eps = p["eps_p"][:n]
+        out[:] = np.where(self.sel[:n] & (R_row <= 0.0), eps, 0.0)
+        cand = np.flatnonzero(self.sel[:n] & (R_row > 0.0) & (eps > self.CANDIDATE * limit))
+        moved = self.halo.exchange({"x": p["x"][:n]}, shift_fields=("x",))["x"]
+        if not len(cand):
+            return
+        x = np.ascontiguousarray(np.concatenate([p["x"][:n], moved]))
+        lists = self._lists
+        if lists is None or len(lists[0]) != len(cand) or not np.array_equal(lists[0], cand):
+            from parsph.core.cross import build_cross_csr
+
+            indptr, indices = build_cross_csr(self.X[cand], self.X, self.R)
+            lists = self._lists = (cand, indptr, indices)
+        value = np.zeros(len(cand))
+        window_strain(cand, lists[1], lists[2], self.X, x, self.sel, self.R, vctx.dim, value)
+        out[cand] = value * self.factor_of[material[cand]]

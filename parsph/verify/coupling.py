@@ -7,6 +7,10 @@ r"""Known answers of the coupled scenes, for ``parsph study`` and the tests (doc
 
 Each reference is ``(scene, run_dir) -> float`` (a relative error), registered with
 :func:`parsph.verify.registry.reference`.
+
+The landslides (``slope_failure``, ``slope_failure_3d``) have no known answer: they are
+judged by their run-out, fluidised volume and time to rest (:func:`landslide`), which
+``parsph study`` extrapolates to d = 0.
 """
 from __future__ import annotations
 
@@ -15,7 +19,7 @@ import os
 import numpy as np
 
 from parsph.errors import ParsphError
-from parsph.verify.registry import reference
+from parsph.verify.registry import quantities, reference
 
 DATA = os.path.join(os.path.dirname(os.path.dirname(__file__)), "scenes", "data")
 
@@ -77,3 +81,56 @@ def elastic_gate(scene, run_dir) -> float:
     horizontal displacement (46 mm)."""
     ex, ey = gate_errors(run_dir)
     return 0.5 * (ex + ey) / float(np.abs(measured_gate("x")[1]).max())
+
+
+#: The run-out is where this fraction of the moving mass stays behind (docs/slope.md: the
+#: farthest particle is one loose grain that round-off alone moved by 0.48 m).
+RUNOUT_FRACTION = 0.99
+#: At rest: the kinetic energy stays below this fraction of its peak.
+REST_FRACTION = 1e-2
+
+
+def run_out(scene, frame) -> float:
+    """Distance (m) along ``output.front_direction`` that :data:`RUNOUT_FRACTION` of the
+    soil's mass (solid and fluidised, no walls) stays behind, from the origin."""
+    direction = np.asarray(scene.output.front_direction, float)
+    if not direction.size:
+        raise ParsphError(f"scene '{scene.name}' declares no output.front_direction: no "
+                          "run-out to measure")
+    direction /= np.linalg.norm(direction)
+    moving = frame["phase"] != 2
+    along = frame["x"][moving] @ direction
+    mass = frame["m"][moving] if "m" in frame else np.ones(len(along))
+    order = np.argsort(along)
+    cum = np.cumsum(mass[order])
+    return float(along[order][np.searchsorted(cum, RUNOUT_FRACTION * cum[-1])])
+
+
+def time_to_rest(stats) -> float:
+    """The last time (s) the kinetic energy is at or above :data:`REST_FRACTION` of its
+    peak (the end of the run if it is then)."""
+    t, ke = np.asarray(stats["time"], float), np.asarray(stats["kinetic_energy"], float)
+    peak = ke.max() if len(ke) else 0.0
+    if peak <= 0.0:
+        return 0.0
+    return float(t[np.flatnonzero(ke >= REST_FRACTION * peak)[-1]])
+
+
+@quantities("slope_failure", "slope_failure_3d")
+def landslide(scene, run_dir) -> dict:
+    """``runout_m`` (:func:`run_out` of the last frame), ``fluidised`` (m^2 per metre in
+    2D, m^3 in 3D: stats.csv's ``fluidised_volume``), ``time_to_rest_s``
+    (:func:`time_to_rest`); in 3D with periodic axes also ``fluidised_per_width_m2``, the
+    fluidised volume per metre of the periodic width (comparable with the 2D section)."""
+    from parsph.io import read_frame, read_stats
+
+    stats = read_stats(os.path.join(run_dir, "stats.csv"))
+    last = read_frame(os.path.join(run_dir, "particles.h5"), "last")
+    out = {"runout_m": run_out(scene, last),
+           "fluidised": float(stats["fluidised_volume"][-1]),
+           "time_to_rest_s": time_to_rest(stats)}
+    dom = scene.domain
+    width = [h - l for l, h, p in zip(dom.lo, dom.hi, dom.periodic) if p]
+    if dom.dim == 3 and width:
+        out["fluidised_per_width_m2"] = out["fluidised"] / float(np.prod(width))
+    return out

@@ -5,6 +5,9 @@ r"""Known answers of the solid scenes, for ``parsph study`` and the tests (docs/
   :data:`PLATE_CONTINUUM_FACTOR` times the thin-plate (Euler–Bernoulli) period.
 - ``triaxial_light``, ``triaxial_heavy``: distance of the end point of the drained path
   from the critical state line, :math:`|q - M p'| / (M p')`, from ``DIR/triaxial.csv``.
+- ``biaxial`` has no known answer: it is judged by its peak and post-peak stress and the
+  width of its shear band (:func:`biaxial_quantities`), which ``parsph study``
+  extrapolates to d = 0 (docs/regularisation.md).
 
 Each reference is ``(scene, run_dir) -> float`` (a relative error), registered with
 :func:`parsph.verify.registry.reference`.
@@ -18,7 +21,7 @@ import os
 import numpy as np
 
 from parsph.errors import ParsphError
-from parsph.verify.registry import reference
+from parsph.verify.registry import quantities, reference
 from parsph.solid.boundary import BETA1
 
 #: 2D plane-strain elasticity period over the thin-plate period, for the plate of
@@ -103,3 +106,59 @@ def triaxial_csl_error(scene, run_dir) -> float:
     """End point of the drained path against the critical state line q = M p'."""
     end = triaxial_end(run_dir)
     return csl_distance(end["p"], end["q"], end["M"])
+
+
+#: The biaxial test's post-peak stress is read at this axial strain (-): about half-way
+#: down its softening branch.
+POST_PEAK_STRAIN = 0.015
+
+
+def biaxial_curve(run_dir):
+    """``(axial strain, sigma_axial)`` of a run with ``solid.triaxial_csv`` (stats.csv):
+    the specimen's shortening over its height and its mean axial stress (Pa, compression
+    positive)."""
+    from parsph.io import read_stats
+
+    stats = read_stats(os.path.join(run_dir, "stats.csv"))
+    if "sigma_axial" not in stats:
+        raise ParsphError(f"{run_dir}/stats.csv has no sigma_axial column; run the scene "
+                          "with solid.triaxial_csv = true")
+    return np.asarray(stats["axial_strain"]), np.asarray(stats["sigma_axial"])
+
+
+def band_width(frame, d, fraction=0.5):
+    r"""Width (m) of the shear band of a frame: the area of the solid particles whose
+    plastic strain is at least ``fraction`` of the largest (:math:`d^2` each, 2D) over
+    the band's length, its extent along the principal axis of those particles (plus d).
+
+    Returns
+    -------
+    width, length : float
+    """
+    solid = frame["phase"] == 0
+    eps, x = frame["eps_p"][solid], frame["x"][solid]
+    top = eps.max()
+    if not top > 0.0:
+        return 0.0, 0.0
+    band = x[eps >= fraction * top]
+    centred = band - band.mean(axis=0)
+    _, vecs = np.linalg.eigh(centred.T @ centred)
+    along = centred @ vecs[:, -1]
+    length = float(along.max() - along.min() + d)
+    return len(band) * d * d / length, length
+
+
+@quantities("biaxial")
+def biaxial_quantities(scene, run_dir) -> dict:
+    """``post_peak_kpa`` (the mean axial stress at :data:`POST_PEAK_STRAIN`), ``peak_kpa``,
+    ``band_width_m`` (:func:`band_width` of the last frame)."""
+    from parsph.io import read_frame
+
+    strain, sigma = biaxial_curve(run_dir)
+    if strain[-1] < POST_PEAK_STRAIN:
+        raise ParsphError(f"{run_dir}: the run ends at {strain[-1]:.4f} axial strain, before "
+                          f"{POST_PEAK_STRAIN}; run it longer")
+    last = read_frame(os.path.join(run_dir, "particles.h5"), "last")
+    width, _ = band_width(last, scene.domain.particle_size)
+    return {"post_peak_kpa": float(np.interp(POST_PEAK_STRAIN, strain, sigma)) / 1e3,
+            "peak_kpa": float(sigma.max()) / 1e3, "band_width_m": width}
