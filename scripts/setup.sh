@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Idempotent set-up on Debian 12 as root: Open MPI, mpi4py, PETSc/petsc4py with hypre,
 # parallel h5py and numba from Debian; ParaView's pvbatch and xvfb (tests/test_paraview.py);
+# GDAL's command-line tools (gdalinfo: tests/test_maps.py reads the GeoTIFFs of `parsph maps`);
 # a .venv on Debian's Python that sees them; parsph installed editable into it. A second
 # run on a set-up machine takes seconds.
 set -euo pipefail
@@ -9,7 +10,7 @@ VENV="${VENV:-.venv}"
 export DEBIAN_FRONTEND=noninteractive
 PKGS="openmpi-bin python3-mpi4py python3-petsc4py python3-h5py-mpi python3-numba
 python3-numpy python3-scipy python3-pytest python3-hypothesis python3-matplotlib python3-venv
-paraview python3-paraview xvfb xauth"
+paraview python3-paraview xvfb xauth gdal-bin"
 if ! dpkg -s $PKGS >/dev/null 2>&1; then
     if [ "$(id -u)" != 0 ]; then
         echo "setup: Debian packages missing ($PKGS); run this script as root or install them" >&2

@@ -19,7 +19,8 @@ ALLOWED = {
     "coupling": {"core", "scene", "solid", "fluid", "errors"},
     "step": {"parsph", "core", "scene", "io", "errors", "log"},  # stages: by name, see pipeline
     "verify": {"core", "scene", "solid", "fluid", "coupling", "step", "io", "errors"},
-    "cli": {"parsph", "core", "scene", "step", "verify", "io", "errors", "log"},
+    "maps": {"parsph", "scene", "io", "errors", "log"},
+    "cli": {"parsph", "core", "scene", "step", "verify", "io", "maps", "errors", "log"},
     "__init__": {"scene", "step"}, "__main__": {"cli"},
 }
 

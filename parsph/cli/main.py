@@ -1,4 +1,4 @@
-"""Command line: ``parsph run|check|scenes|info|plot|study``.
+"""Command line: ``parsph run|check|scenes|info|plot|study|maps``.
 
 Every verb works the same on 1 rank and under ``mpirun -n N``. Bad input ends with one
 message on rank 0, no traceback, exit status 2, on every rank; a numerical failure with
@@ -17,7 +17,7 @@ from parsph import __version__
 from parsph.errors import NumericalError, ParsphError, Preempted
 
 EXIT_OK, EXIT_BUG, EXIT_INPUT, EXIT_NUMERICAL, EXIT_PREEMPTED = 0, 1, 2, 3, 4
-VERBS = ("run", "check", "scenes", "info", "plot", "study")
+VERBS = ("run", "check", "scenes", "info", "plot", "study", "maps")
 DEFAULT_SCENE = "slope_failure"
 
 
@@ -32,7 +32,7 @@ def _parser() -> _Parser:
     p = _Parser(prog="parsph", description="Phase-change TLSPH-IISPH landslide simulation "
                 "on MPI and PETSc. PETSc options (-ppe_ksp_monitor, -log_view, ...) pass through.")
     p.add_argument("--version", action="version", version=f"parsph {__version__}")
-    sub = p.add_subparsers(dest="verb", metavar="{run,check,scenes,info,plot,study}",
+    sub = p.add_subparsers(dest="verb", metavar="{run,check,scenes,info,plot,study,maps}",
                            parser_class=_Parser)
     r = sub.add_parser("run", help="run a scene (default: the built-in default scene)")
     r.add_argument("scene", nargs="?", default=DEFAULT_SCENE,
@@ -68,7 +68,44 @@ def _parser() -> _Parser:
                     help="particle_size=..., cfl=..., ksp_rtol=... or any dotted scene key "
                     "(default: the scene's [study] particle_sizes)")
     st.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
+    mp = sub.add_parser("maps", help="rasters of a 3D run over the terrain: deposit, erosion, "
+                        "flow depth, speed, arrival (GeoTIFF, PNG, summary.json)")
+    mp.add_argument("dir", help="run output directory (with particles.h5)")
+    mp.add_argument("--cell", type=_number, default=None, metavar="SIZE",
+                    help="cell size in m (default: the height map's; required without one)")
+    mp.add_argument("--scene", default=None, metavar="FILE",
+                    help="the run's scene file, if it is no longer where the run read it")
+    mp.add_argument("--out", default=None, help="directory for the maps (default: DIR/maps)")
+    mp.add_argument("--speed-threshold", type=_number, default=None, metavar="V",
+                    help="speed in m/s above which material is flowing (default 0.1)")
+    mp.add_argument("--min-thickness", type=_number, default=None, metavar="H",
+                    help="erosion or deposit in m from which a cell counts as source or "
+                    "deposit (areas, crown, toe; default d/4)")
+    mp.add_argument("--flowing", choices=("any", "fluid"), default="any",
+                    help="what, faster than the threshold, is flowing: any material (default) "
+                    "or only the fluid, the debris of the phase change (earthquake scenes)")
+    mp.add_argument("--no-png", action="store_true", help="GeoTIFF and summary.json only")
     return p
+
+
+def _number(text: str) -> float:
+    """argparse type: a float (argparse names the option and the value otherwise)."""
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+
+
+def cmd_maps(comm, args) -> int:
+    from parsph.maps.compute import make_maps
+
+    summary = make_maps(comm, args.dir, cell=args.cell, scene=args.scene, out=args.out,
+                        speed_threshold=args.speed_threshold, min_thickness=args.min_thickness,
+                        flowing=args.flowing, pictures=not args.no_png)
+    if comm.rank == 0:
+        for path in summary["files"]:
+            print(path)
+    return EXIT_OK
 
 
 def cmd_study(comm, args, petsc) -> int:
@@ -303,6 +340,8 @@ def main(argv=None) -> int:
             return cmd_info(comm)
         if args.verb == "study":
             return cmd_study(comm, args, petsc)
+        if args.verb == "maps":
+            return cmd_maps(comm, args)
         return cmd_plot(comm, args)
     except Preempted as exc:
         if comm.rank == 0:

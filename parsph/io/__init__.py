@@ -13,6 +13,10 @@
 - :func:`~parsph.io.plot.plot_run`: PNG pictures of frames (``parsph plot``).
 - :func:`~parsph.io.series.plot_series`: stats.csv and probes.csv over time in one PNG
   (``parsph plot --series``).
+- :class:`~parsph.io.frames.FrameReader`: the frames read in parallel, each rank its
+  share of the rows (``parsph maps``).
+- :mod:`~parsph.io.geotiff`: float32 GeoTIFF rasters, georeferenced, written by every rank
+  into its own rows of one file.
 
 Names are imported lazily, so ``import parsph.io`` loads neither h5py nor matplotlib.
 """

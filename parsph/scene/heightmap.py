@@ -23,7 +23,7 @@ georeferencing at all are refused (docs/geometry.md).
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -34,10 +34,19 @@ _HEADER = ("ncols", "nrows", "xllcorner", "yllcorner", "cellsize")
 
 @dataclass(frozen=True)
 class Grid:
+    """Node heights ``z`` (m) at ``x0 + i cell``, ``y0 + j cell``.
+
+    ``georef`` (GeoTIFF only, else None): the file's georeferencing tags as read, TIFF
+    tag code -> value (GeoKeyDirectory, GeoDoubleParams, GeoAsciiParams, ModelPixelScale,
+    ModelTiepoint or ModelTransformation), so that rasters written on this grid
+    (``parsph maps``) carry the same CRS and transform.
+    """
+
     x0: float
     y0: float
     cell: float
     z: np.ndarray  # (ny, nx), row j at y = y0 + j * cell
+    georef: dict | None = field(default=None, compare=False, repr=False)
 
     @property
     def extent(self):
@@ -111,6 +120,8 @@ def surface(grid: Grid, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 _TIFF_MAGIC = (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")
 #: TIFF tags of GeoTIFF and GDAL.
 _PIXEL_SCALE, _TIEPOINT, _TRANSFORMATION, _GEOKEYS, _GDAL_NODATA = 33550, 33922, 34264, 34735, 42113
+#: GeoTIFF tags of the CRS's double and text parameters (kept with the GeoKeyDirectory).
+_GEO_DOUBLES, _GEO_ASCII = 34736, 34737
 #: GeoKeys read (GeoTIFF 1.1): model type, raster type, geographic CRS, projected CRS,
 #: projected linear unit, vertical unit; EPSG unit 9001 is the metre.
 _MODEL_TYPE, _RASTER_TYPE, _GEOGRAPHIC, _PROJECTED, _LINEAR_UNITS, _VERTICAL_UNITS = \
@@ -162,7 +173,8 @@ def read_geotiff(path: str, key: str = "", source: str = "") -> Grid:
         with tifffile.TiffFile(path) as tif:
             page = tif.pages[0]
             tags = {code: page.tags[code].value for code in
-                    (_PIXEL_SCALE, _TIEPOINT, _TRANSFORMATION, _GEOKEYS, _GDAL_NODATA)
+                    (_PIXEL_SCALE, _TIEPOINT, _TRANSFORMATION, _GEOKEYS, _GDAL_NODATA,
+                     _GEO_DOUBLES, _GEO_ASCII)
                     if code in page.tags}
             z = page.asarray()
     except FileNotFoundError:
@@ -232,4 +244,8 @@ def read_geotiff(path: str, key: str = "", source: str = "") -> Grid:
         raise SceneError(f"{where}{what} has NaN or infinite heights")
     x0 = x_tie + (offset - i_tie) * sx
     y0 = y_tie - (ny - 1 + offset - j_tie) * sy  # the southernmost row's centre
-    return Grid(x0=x0, y0=y0, cell=sx, z=z[::-1].copy())
+    georef = {code: (value if isinstance(value, str) else tuple(np.ravel(value).tolist()))
+              for code, value in tags.items()
+              if code in (_PIXEL_SCALE, _TIEPOINT, _TRANSFORMATION, _GEOKEYS, _GEO_DOUBLES,
+                          _GEO_ASCII)}
+    return Grid(x0=x0, y0=y0, cell=sx, z=z[::-1].copy(), georef=georef)
