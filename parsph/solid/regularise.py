@@ -184,6 +184,7 @@ class NonlocalStrain:
         self.system = None
         self.reg = None
         self.n_rows = 0
+        self.total = 0
         self.iterations = 0
         self.solves = 0
         self.wall_s = 0.0
@@ -204,7 +205,11 @@ class NonlocalStrain:
         reg = self.rows(material, sel)
         self.reg = reg
         self.n_rows = int(reg[:n].sum())
-        offset, _ = global_offset(ctx.comm, self.n_rows)
+        offset, total = global_offset(ctx.comm, self.n_rows)
+        self.total = total
+        if total == 0:  # every regularised row has left the solid
+            self.destroy()
+            return
         gid = p.add_field("nl_row", (), np.int64, fill=-1)
         gid[:] = -1
         gid[:n][reg[:n]] = offset + np.arange(self.n_rows)
@@ -223,8 +228,10 @@ class NonlocalStrain:
 
     def due(self, ctx) -> bool:
         """Collective: whether some owned regularised row's plastic strain moved by
-        :data:`SOLVE_TOLERANCE` since the last solve."""
+        :data:`SOLVE_TOLERANCE` since the last solve (never without rows)."""
         p, n = ctx.particles, ctx.particles.n_owned
+        if self.system is None:
+            return False
         change = drift_since_solve(self.reg, n, p["eps_p"], p["eps_p_nl"], p["eps_p_shift"])
         return global_max(ctx.comm, change) > SOLVE_TOLERANCE
 
@@ -235,6 +242,8 @@ class NonlocalStrain:
         import time
 
         p, n = ctx.particles, ctx.particles.n_owned
+        if self.system is None:
+            return
         reg = self.reg[:n]
         t0 = time.perf_counter()
         kappa = p["eps_p"][:n]

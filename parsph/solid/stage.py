@@ -68,8 +68,8 @@ class TLSPH:
         self.tab = material_table(ctx.materials, m_nl)
         self.nl_strain = None
         self.output_fields = ()
-        if any(regular):
-            self._init_nonlocal(ctx, regular)
+        if any(m_nl):  # the softening soils' average (the trigger has its own window)
+            self._init_nonlocal(ctx, [m > 0.0 for m in m_nl])
         self.rho0_of = np.ascontiguousarray(self.tab[:, C["rho0"]])
         self.has_cam_clay = bool(np.any(self.tab[:, C["model"]] == CAM_CLAY))
         self.has_walls = bool(ctx.scene.walls)
