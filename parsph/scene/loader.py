@@ -420,7 +420,7 @@ def _regularise(scn: Scene, file_d, source: str) -> None:
     Refused, naming the key: a length on a soil that does not soften, and a length the
     particle size cannot resolve. With ``regularisation = "local"`` a given length is
     kept but unused (the paper's rule is one key away from a scene that declares one)."""
-    from parsph.scene.materials import DEFAULT_LENGTH_IN_D, MIN_RESOLVED
+    from parsph.scene.materials import DEFAULT_LENGTH_IN_D, MIN_RESOLVED, WINDOW_IN_ELL
 
     d = scn.domain.particle_size
     base = file_d if isinstance(file_d, (int, float)) and file_d > 0 else d
@@ -446,6 +446,14 @@ def _regularise(scn: Scene, file_d, source: str) -> None:
             mat = replace(mat, internal_length=ell)
             scn.materials[name] = mat
         object.__setattr__(mat, "_regularised", True)
+        periods = [h - l for l, h, per in zip(scn.domain.lo, scn.domain.hi,
+                                              scn.domain.periodic or ()) if per]
+        window = WINDOW_IN_ELL * ell
+        if trigger and periods and window >= min(periods):
+            _err(source, f"{key}.internal_length", f"{ell:g} m: the phase change's window "
+                 f"(radius {WINDOW_IN_ELL:g} l = {window:g} m) must be shorter than the "
+                 f"periodic length {min(periods):g} m; widen the domain across its periodic "
+                 f"axis or use a length below {min(periods) / WINDOW_IN_ELL:g} m")
         if ell < MIN_RESOLVED * d * (1.0 - 1e-9):
             _err(source, f"{key}.internal_length", f"{ell:g} m is below the particle size "
                  f"d = {d:g} m, which cannot resolve it (the average would not reach a "

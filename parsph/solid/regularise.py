@@ -328,8 +328,7 @@ def window_strain(rows, indptr, indices, X, x, sel, R, dim, out):
         out[k] = math.sqrt(2.0 * ((e0 - mean) ** 2 + (e1 - mean) ** 2 + (e2 - mean) ** 2))
 
 
-#: The window of the phase-change trigger, in internal lengths: its radius.
-WINDOW_IN_ELL = 2.0
+from parsph.scene.materials import WINDOW_IN_ELL  # noqa: E402 (the window's radius in l)
 
 
 class WindowTrigger:
