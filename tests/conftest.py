@@ -74,6 +74,9 @@ def comm():
 def pytest_addoption(parser):
     parser.addoption("--slow", action="store_true", default=False,
                      help="also run the tests marked slow (minutes each)")
+    parser.addoption("--keep-output", metavar="DIR", default=None,
+                     help="keep each test's output directory under DIR (named after the "
+                          "test) instead of removing it: the slow studies' runs, for docs")
 
 
 def pytest_collection_modifyitems(config, items):
@@ -117,11 +120,20 @@ def _barrier_after_each_test(comm):
 
 
 @pytest.fixture
-def mpi_tmp_path(comm):
-    """A temporary directory shared by all ranks, removed after the test."""
-    path = tempfile.mkdtemp(prefix="parsph-test-") if comm.rank == 0 else None
+def mpi_tmp_path(comm, request):
+    """A temporary directory shared by all ranks, removed after the test (kept under
+    ``--keep-output DIR`` as DIR/TEST_NAME)."""
+    keep = request.config.getoption("--keep-output")
+    path = None
+    if comm.rank == 0:
+        if keep:
+            path = os.path.join(os.path.abspath(keep), request.node.name)
+            shutil.rmtree(path, ignore_errors=True)
+            os.makedirs(path)
+        else:
+            path = tempfile.mkdtemp(prefix="parsph-test-")
     path = comm.bcast(path, root=0)
     yield path
     comm.Barrier()
-    if comm.rank == 0:
+    if comm.rank == 0 and not keep:
         shutil.rmtree(path, ignore_errors=True)

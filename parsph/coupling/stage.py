@@ -52,7 +52,7 @@ VIEW_STATE = ("F", "tau", "eps_e", "lapv")
 #: coupling's own (the fluid's force on a solid is read from the main set). Copied into
 #: the view they had cost 160 bytes per solid particle.
 MAIN_ONLY = ("nu", "v_star", "v_ghost", "free_surface", "wall_slip", "fluid_row", "p_ppe",
-             "ppe_band", "fluidised", "inv_mass", "a_self", "fsi_force", "eps_trigger")
+             "ppe_band", "fluidised", "inv_mass", "a_self", "fsi_force")
 
 #: Fields of the main set no stage reads on its current-configuration halo rows: the
 #: solid's state (the TLSPH step reads it in the view, on the view's reference halo) and
@@ -60,7 +60,8 @@ MAIN_ONLY = ("nu", "v_star", "v_ghost", "free_surface", "wall_slip", "fluid_row"
 #: migrate) 375 of a 3D row's 613 bytes, which had been 40 % of the 2-rank halo
 #: exchange's time (docs/performance.md).
 HALO_SKIP = VIEW_STATE + ("X", "eps_p", "p_c", "porosity", "modulus", "ref_count0",
-                          "solid_init", "fluidised", "ppe_band", "eps_trigger") + NONLOCAL_STATE
+                          "solid_init", "fluidised", "ppe_band") + NONLOCAL_STATE \
+    + ("eps_trigger", "trigger_time", "trigger_rate")
 
 #: stats.csv columns of the coupling; ``fsi_force_*`` (N, N/m in 2D) is the net force of
 #: the fluid on the solid (eq. (45), pressure and viscous parts) before constraints.
@@ -79,8 +80,9 @@ class Coupled:
         from parsph.solid.stage import TLSPH
 
         self.solid = TLSPH(ctx)  # adds the solid fields to the main set
-        self.solid_state = SOLID_STATE + tuple(k for k in NONLOCAL_STATE if k in ctx.particles)
         self.window = self._window(ctx)
+        self.solid_state = SOLID_STATE + tuple(k for k in NONLOCAL_STATE if k in ctx.particles) \
+            + (self.window.FIELDS if self.window is not None else ())
         for name in VIEW_FIELDS:  # but these live in the solid's view only
             ctx.particles.data.pop(name, None)
         self.fluid = IISPH(ctx)  # adds the fluid fields
@@ -133,8 +135,10 @@ class Coupled:
         tab = self.solid.tab
         factor = [1.0 / math.sqrt(3.0) if int(tab[k, COL["model"]]) == CAM_CLAY
                   else tab[k, COL["xi"]] for k in range(len(ctx.materials))]
-        ctx.particles.add_field("eps_trigger")
-        return WindowTrigger(ctx.comm, [WINDOW_IN_ELL * e for e in ell], factor)
+        window = WindowTrigger(ctx.comm, [WINDOW_IN_ELL * e for e in ell], factor)
+        for name in window.FIELDS:
+            ctx.particles.add_field(name)
+        return window
 
     def _build_view(self, ctx) -> None:
         """The solid's view of the owned solid rows: its state from the main set, the
@@ -321,10 +325,12 @@ class Coupled:
             return p["eps_p"][:n]
         view = self.view
         value = np.zeros(view.n)
-        self.window.strain(view.ctx, self.limit, value)
-        p["eps_trigger"][:n] = 0.0
-        p["eps_trigger"][view.rows] = value
-        return p["eps_trigger"][:n]
+        vmax = global_max(ctx.comm, max_speed(view.ctx.particles["v"], view.n))
+        self.window.strain(view.ctx, self.limit, ctx.time, vmax, value)
+        view.write_back(self.window.FIELDS)
+        out = np.zeros(n)
+        out[view.rows] = value
+        return out
 
     def _phase_change(self, ctx) -> None:
         """Section 3.3: solid rows past the plastic-strain limit become fluid."""

@@ -265,7 +265,7 @@ class NonlocalStrain:
 
 
 @njit(cache=True, error_model="numpy")
-def window_strain(rows, indptr, indices, X, x, sel, R, dim, out):
+def window_strain(rows, indptr, indices, X, x, sel, R, dim, out, gain):
     r"""Shear strain of the deformation over a window of radius R in the reference
     configuration, for each row of ``rows``: the deformation gradient fitted by weighted
     least squares, :math:`\mathbf F = \mathbf B\mathbf M^{-1}`,
@@ -274,7 +274,8 @@ def window_strain(rows, indptr, indices, X, x, sel, R, dim, out):
     within R (:math:`w = (1 - r^2/R^2)^2`), then its logarithmic strain's shear measure
     :math:`\sqrt{2\,\mathrm{dev}\,\mathbf e : \mathrm{dev}\,\mathbf e}` (the engineering
     shear in simple shear). The window spans gaps the fluidised soil left, so it sees the
-    slip across them."""
+    slip across them. ``gain`` gets :math:`\sum_j w_j |\mathbf X_{ij}| / \lambda_{min}
+    (\mathbf M)` (1/m): :math:`|\dot{\mathbf F}| \le 2 v_{max}` times it."""
     M = np.zeros((3, 3))
     B = np.zeros((3, 3))
     Minv = np.zeros((3, 3))
@@ -286,6 +287,7 @@ def window_strain(rows, indptr, indices, X, x, sel, R, dim, out):
         M[:, :] = 0.0
         B[:, :] = 0.0
         cnt = 0
+        reach = 0.0
         for p in range(indptr[k], indptr[k + 1]):
             j = indices[p]
             if j == i or not sel[j]:
@@ -297,16 +299,24 @@ def window_strain(rows, indptr, indices, X, x, sel, R, dim, out):
                 continue
             w = (1.0 - r2 / R2) ** 2
             cnt += 1
+            reach += w * math.sqrt(r2)
             for a in range(dim):
                 for b in range(dim):
                     M[a, b] += w * (X[j, a] - X[i, a]) * (X[j, b] - X[i, b])
                     B[a, b] += w * (x[j, a] - x[i, a]) * (X[j, b] - X[i, b])
         if cnt < 2 * dim:
             out[k] = 0.0
+            gain[k] = math.inf
             continue
         if dim == 2:
+            half = 0.5 * (M[0, 0] - M[1, 1])
+            low = 0.5 * (M[0, 0] + M[1, 1]) - math.sqrt(half * half + M[0, 1] * M[0, 1])
             M[2, 2] = 1.0
             B[2, 2] = 1.0
+        else:
+            lam, _ = eigh3(M)
+            low = lam[0]
+        gain[k] = reach / low if low > 0.0 else math.inf
         inv3_into(M, Minv)
         for a in range(3):
             for b in range(3):
@@ -343,17 +353,28 @@ class WindowTrigger:
     fluidised band sees the slip across it: the zone that fluidises around a slip surface
     is set by R, not by the particle size.
 
+    A row's window is evaluated again only when it could have reached the limit: its
+    strain grows at most as fast as ``4 factor gain v_max`` (:func:`window_strain`: the
+    fit's gain, v_max the solid's largest speed, a factor 2 for the logarithm), so a row
+    at ``value`` evaluated at ``t_e`` cannot pass ``limit`` before
+    ``t_e + (limit - value) / rate``. The trigger then fires at the step it would with an
+    evaluation every step. Per-row state (solid fields, so views, migration and
+    checkpoints carry it): ``eps_trigger`` (the value at the row's last evaluation),
+    ``trigger_time``, ``trigger_rate``.
+
     Parameters
     ----------
     comm : mpi4py communicator
     radius_of, factor_of : ndarray (n_materials,)
         R (m) and the strain factor per material (R = 0: the material's rows keep the
-        local trigger, their accumulated plastic strain).
+        local trigger, their accumulated plastic strain). The window takes the largest R.
     """
 
     #: A row is a candidate once its accumulated plastic strain passes this fraction of
     #: the limit: elastic soil does not change phase.
     CANDIDATE = 2e-3
+    #: Per-row state it adds to the solid (view and main set).
+    FIELDS = ("eps_trigger", "trigger_time", "trigger_rate")
 
     def __init__(self, comm, radius_of, factor_of):
         self.comm = comm
@@ -361,7 +382,7 @@ class WindowTrigger:
         self.factor_of = np.asarray(factor_of, float)
         self.R = float(self.radius_of.max()) if len(self.radius_of) else 0.0
         self.halo = None
-        self._lists = None
+        self.evaluated = 0  # rows evaluated in the last call (all ranks' sum not kept)
 
     def build(self, vctx, sel) -> None:
         """Collective: the window's halo (the solid rows within R of this rank's, in X) and
@@ -374,28 +395,34 @@ class WindowTrigger:
                                    shift_fields=("X",))
         self.X = np.ascontiguousarray(np.concatenate([p["X"][:n], fixed["X"]]))
         self.sel = np.concatenate([sel[:n], fixed["sel"].astype(bool)])
-        self._lists = None
 
-    def strain(self, vctx, limit, out) -> None:
+    def strain(self, vctx, limit, t, vmax, out) -> None:
         """Collective: the trigger strain of the owned solid rows into ``out`` (n_owned):
-        the window strain of the candidates (:data:`CANDIDATE`), their own accumulated
-        plastic strain where R = 0, else 0."""
+        the window strain of the candidates (:data:`CANDIDATE`) at their last evaluation,
+        their own accumulated plastic strain where R = 0, else 0. ``t`` the time (s),
+        ``vmax`` the solid's largest speed (m/s, all ranks)."""
         p, n = vctx.particles, vctx.particles.n_owned
         material = np.maximum(p["material"][:n], 0)
         R_row = self.radius_of[material]
         eps = p["eps_p"][:n]
-        out[:] = np.where(self.sel[:n] & (R_row <= 0.0), eps, 0.0)
-        cand = np.flatnonzero(self.sel[:n] & (R_row > 0.0) & (eps > self.CANDIDATE * limit))
+        value, t_e, rate = (p[k][:n] for k in self.FIELDS)
+        cand = self.sel[:n] & (R_row > 0.0) & (eps > self.CANDIDATE * limit)
+        rate_now = rate * vmax
+        due = cand & ((rate_now == 0.0) | (value + rate_now * (t - t_e) >= limit))
+        rows = np.flatnonzero(due)
         moved = self.halo.exchange({"x": p["x"][:n]}, shift_fields=("x",))["x"]
-        if not len(cand):
-            return
-        x = np.ascontiguousarray(np.concatenate([p["x"][:n], moved]))
-        lists = self._lists
-        if lists is None or len(lists[0]) != len(cand) or not np.array_equal(lists[0], cand):
+        self.evaluated = len(rows)
+        if len(rows):
             from parsph.core.cross import build_cross_csr
 
-            indptr, indices = build_cross_csr(self.X[cand], self.X, self.R)
-            lists = self._lists = (cand, indptr, indices)
-        value = np.zeros(len(cand))
-        window_strain(cand, lists[1], lists[2], self.X, x, self.sel, self.R, vctx.dim, value)
-        out[cand] = value * self.factor_of[material[cand]]
+            x = np.ascontiguousarray(np.concatenate([p["x"][:n], moved]))
+            indptr, indices = build_cross_csr(self.X[rows], self.X, self.R)
+            val = np.zeros(len(rows))
+            gain = np.zeros(len(rows))
+            window_strain(rows, indptr, indices, self.X, x, self.sel, self.R, vctx.dim, val,
+                          gain)
+            f = self.factor_of[material[rows]]
+            value[rows] = f * val
+            t_e[rows] = t
+            rate[rows] = 4.0 * f * gain
+        out[:] = np.where(self.sel[:n] & (R_row <= 0.0), eps, np.where(cand, value, 0.0))
