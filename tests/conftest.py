@@ -27,12 +27,12 @@ os.environ.setdefault("NUMBA_CACHE_DIR", os.path.join(os.path.expanduser("~"), "
 #: Seconds of each test module in a one-rank session with a cold numba cache (as in CI's
 #: fresh clone), for dealing modules to shards; only the balance depends on them.
 MODULE_SECONDS = {
-    "test_coupling": 294, "test_strong_coupling": 170, "test_failures": 169, "test_cli": 78,
-    "test_fluid_stability": 36, "test_iisph": 29, "test_probes": 29, "test_paraview": 21,
-    "test_solid_stability": 20, "test_output": 16, "test_restart": 14, "test_tlsph": 14,
-    "test_constitutive": 11, "test_kernel": 7, "test_decomposition": 5, "test_run": 4,
-    "test_tutorial": 4, "test_maps": 30, "test_neighbours": 3, "test_output_schedule": 2, "test_study": 2,
-    "test_solvers": 2, "test_series": 2, "test_regularisation": 25,
+    "test_coupling": 294, "test_strong_coupling": 170, "test_failures": 169, "test_energy": 90,
+    "test_cli": 78, "test_fluid_stability": 36, "test_iisph": 29, "test_probes": 29,
+    "test_paraview": 21, "test_solid_stability": 20, "test_output": 16, "test_restart": 14,
+    "test_tlsph": 14, "test_constitutive": 11, "test_kernel": 7, "test_decomposition": 5,
+    "test_run": 4, "test_tutorial": 4, "test_neighbours": 3, "test_output_schedule": 2,
+    "test_study": 2, "test_solvers": 2, "test_series": 2, "test_maps": 30, "test_regularisation": 25,
 }
 
 

@@ -397,3 +397,23 @@ def pvbatch(*args, timeout=300):
             return r
         time.sleep(2.0 * (attempt + 1))
     return r
+
+
+def energy_balance(rows):
+    """A run's energy balance from its stats rows (docs/energy.md): ``(rise, gain)``,
+    the largest rise of E in a step and over any stretch of steps, each over the peak
+    kinetic energy (the last row's running ``energy_rise_max``, ``energy_gain_max``)."""
+    return float(rows[-1]["energy_rise_max"]), float(rows[-1]["energy_gain_max"])
+
+
+def assert_energy_balance(rows, rise, gain, what="the run"):
+    """The run's energy balance rises by at most ``rise`` of its peak kinetic energy in
+    a step and ``gain`` over any stretch of steps; the message names the worst step."""
+    got = energy_balance(rows)
+    worst = max(rows, key=lambda r: float(r["energy_rise"]))
+    message = (f"{what}: E rose by {got[0]:.3g} of the peak kinetic energy in a step (the "
+               f"largest at step {worst['step']}, t = {worst['time']} s) and {got[1]:.3g} "
+               f"over a stretch of steps; allowed {rise:g} and {gain:g}")
+    print(f"{what}: energy balance rise {got[0]:.3g}, gain {got[1]:.3g} of the peak kinetic "
+          f"energy")
+    assert got[0] <= rise and got[1] <= gain, message

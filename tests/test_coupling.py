@@ -9,7 +9,8 @@ from parsph.fluid import assembly, viscous
 from parsph.core.kernel import fac_grad, smoothing_length
 from parsph.step.run import run
 from parsph.scene.loader import load_scene
-from tests.scenes import (G_2D, assert_agree_by_id, box, dense_system, first_and_last, held,
+from tests.scenes import (G_2D, assert_agree_by_id, assert_energy_balance, box, dense_system,
+                          first_and_last, held,
                           hencky, last_frame, load_shared, run_on_one_and_two, scene_text,
                           stats_rows, tank, wall, water, water_around)
 
@@ -396,8 +397,9 @@ def test_phase_change_at_a_rank_boundary(comm, mpi_tmp_path):
 @pytest.mark.mpi(min_size=2)
 def test_slope_failure_3d_at_a_small_size(comm, mpi_tmp_path):
     """The built-in 3D slope (a slab periodic across the slope) at d = 0.0625 m to 0.6 s:
-    1 and 2 ranks agree by global id to the KSP tolerance, the toe fluidises, and no step
-    raises the kinetic energy by more than gravity and the elastic energy can supply."""
+    1 and 2 ranks agree by global id to the KSP tolerance, the toe fluidises, and the
+    energy balance rises by at most 5e-5 of the peak kinetic energy in a step and 1e-4
+    over any stretch (measured on 1 and 2 ranks: 1.7e-5 and 3.9e-5)."""
     scene = load_scene("slope_failure_3d", ["domain.particle_size=0.0625", "run.end_time=0.6",
                                             "output.every=0.3", "output.progress=false"])
     one, two = run_on_one_and_two(comm, scene, mpi_tmp_path)
@@ -406,7 +408,7 @@ def test_slope_failure_3d_at_a_small_size(comm, mpi_tmp_path):
         for out in (one, two):
             rows = stats_rows(out)
             assert float(rows[-1]["n_fluidised"]) > 0
-            assert max(float(r["energy_ratio"]) for r in rows) <= 1.0
+            assert_energy_balance(rows, 5e-5, 1e-4, f"3D slope on {out[-3:]}")
 
 
 @pytest.mark.mpi(min_size=2)
@@ -432,7 +434,10 @@ def _slope(comm, tmp, d, end=3.0):
 
 def _slope_checks(rows, d):
     """What every resolution must show (section 6.2): it fluidises, runs out on the floor,
-    the run-out comes to rest, no particle is thrown out, and no step makes energy."""
+    the run-out comes to rest, no particle is thrown out, and the numerics make next to
+    no energy: the energy balance (docs/energy.md) rises by at most 1e-4 of the peak
+    kinetic energy in a step and 1e-3 over any stretch (measured: 3.4e-5 and 2.9e-4 at
+    d = 0.05 m on 1 rank, 6.5e-7 and 1.6e-6 at 0.035 m on 2 ranks)."""
     last = rows[-1]
     fluidised = float(last["fluidised_volume"])
     assert fluidised == pytest.approx(float(last["n_fluidised"]) * d ** 2, rel=0.01)
@@ -444,22 +449,17 @@ def _slope_checks(rows, d):
     # docs/slope.md)
     assert ke[t >= 1.5].min() < 1e-2 * ke.max()
     assert max(float(r["max_speed"]) for r in rows) < 4.0  # free fall from the crest: 4.4
-    # no single step raises the kinetic energy by more than gravity (|g| sqrt(2 M KE) dt,
-    # Cauchy-Schwarz) and the elastic energy the soil released can supply
-    ratio = np.array([float(r["energy_ratio"]) for r in rows])
-    worst = int(np.argmax(ratio))
-    message = f"step {rows[worst]['step']} (t = {rows[worst]['time']} s) raised the kinetic " \
-        f"energy by {ratio[worst]:.2f} times what gravity and the elastic energy can supply"
-    assert ratio[worst] <= 1.0, message
+    assert_energy_balance(rows, 1e-4, 1e-3, f"slope at d = {d}")
 
 
 @pytest.mark.one_rank  # on 2 ranks: test_slope_failure_at_a_finer_resolution
 def test_slope_failure_fluidises_and_runs_out_further(comm, mpi_tmp_path):
     """Section 6.2 at d = 0.05 m (Table 2): with phase change the slope's toe fluidises
     and the slide runs out on it, far beyond the TLSPH-only slope (which stops within
-    ~0.1 m by 0.7 s), and comes to rest; no step makes energy. The partitioned coupling
-    let thin fluidised bands in the soil grow their pressure 1.3x per step and raise the
-    kinetic energy by up to 6 times what gravity can supply (docs/coupling.md)."""
+    ~0.1 m by 0.7 s), and comes to rest; the numerics make next to no energy. The
+    partitioned coupling let thin fluidised bands in the soil grow their pressure 1.3x per
+    step and raise the kinetic energy by up to 6 times what gravity could supply
+    (docs/coupling.md)."""
     solid = load_scene("slope_failure_solid", ["run.end_time=0.7", "output.progress=false"])
     out = os.path.join(mpi_tmp_path, "solid")
     run(solid, out, comm=comm, progress=False)
@@ -512,7 +512,9 @@ def test_partitions_follow_the_failing_toe(comm, mpi_tmp_path):
     holding it loses solids, and the new fluid runs out over the floor. With
     run.rebalance_tolerance = 1.05 the solids' partition and the fluid's (apart from the
     walls') are rebuilt whenever the largest owned count passes 1.05 x the mean: every
-    stats row stays within it, the run keeps the energy bound, and a restart after such
+    stats row stays within it, the energy balance rises by at most 1e-5 of the peak kinetic
+    energy in a step and 2e-5 over any stretch (measured: 2.3e-6 and 5.3e-6), and a
+    restart after such
     rebuilds is still bit for bit."""
     sets = ["run.rebalance_tolerance=1.05", "output.every=0.4", "output.progress=false"]
     whole, first = (os.path.join(mpi_tmp_path, k) for k in ("whole", "first"))
@@ -532,7 +534,7 @@ def test_partitions_follow_the_failing_toe(comm, mpi_tmp_path):
             mean = float(r["n_fluid"]) / comm.size
             assert float(r["n_fluid_rank_max"]) <= 1.05 * mean + 1, r["time"]
         assert max(highs) > min(highs)  # the partition moved with the fluidising toe
-        assert max(float(r["energy_ratio"]) for r in rows) <= 1.0
+        assert_energy_balance(rows, 1e-5, 2e-5, "slope, rebalanced")
         a, b = last_frame(first), last_frame(whole)
         for key in ("id", "x", "v", "p", "eps_p", "phase"):
             assert np.array_equal(a[key], b[key]), key
@@ -585,8 +587,9 @@ def test_slope_failure_converges(comm, mpi_tmp_path):
                   f"particle {float(stats[-1]['front']):.3f} m, fluidised "
                   f"{r['q_fluidised']:.4f} m^2 ({stats[-1]['n_fluidised']} particles), at "
                   f"rest (1 % of the peak kinetic energy) from {r['q_time_to_rest_s']:.2f} s, "
-                  f"{r['steps']} steps in {r['wall_s']:.0f} s, largest energy ratio "
-                  f"{max(float(s['energy_ratio']) for s in stats):.3f}")
+                  f"{r['steps']} steps in {r['wall_s']:.0f} s, energy balance: largest "
+                  f"rise {float(stats[-1]['energy_rise_max']):.2g} (a step), "
+                  f"{float(stats[-1]['energy_gain_max']):.2g} (a stretch)")
         for what in ("q_runout_m", "q_fluidised"):
             q = [r[what] for r in rows]
             first, last = abs(q[1] - q[0]), abs(q[3] - q[2])

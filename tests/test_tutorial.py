@@ -16,7 +16,7 @@ from parsph.scene.geometry import estimate_count
 from parsph.scene.heightmap import read_grid
 from parsph.scene.loader import load_scene
 from parsph.step.run import run
-from tests.scenes import pvbatch
+from tests.scenes import assert_energy_balance, pvbatch, stats_rows
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 TUTORIAL = os.path.join(ROOT, "docs", "tutorial")
@@ -68,8 +68,9 @@ def test_tutorial_scene_loads_and_checks_with_the_particles_the_readme_says(comm
 
 def test_tutorial_scene_steps_on_this_session_s_ranks(comm, mpi_tmp_path):
     """A few steps of the slope: the soil starts to move under gravity, every particle
-    stays, the energy is finite and no step gains more kinetic energy than gravity and
-    the elastic energy supply (energy_ratio <= 1)."""
+    stays, the energy is finite and the energy balance rises by at most 1e-3 of the peak
+    kinetic energy in a step and 2e-3 over any stretch (measured on 1 and 2 ranks:
+    2.8e-4 and 5.5e-4)."""
     out = os.path.join(mpi_tmp_path, "out")
     summary = run(load_scene(SCENE, ["run.end_time=0.03"]), out, comm=comm, progress=False)
     assert summary["particles"] == 1565 and summary["steps"] > 10
@@ -78,7 +79,8 @@ def test_tutorial_scene_steps_on_this_session_s_ranks(comm, mpi_tmp_path):
         assert np.all(np.isfinite(stats["kinetic_energy"]))
         assert np.all(np.isfinite(stats["elastic_energy"]))
         assert stats["kinetic_energy"][-1] > 0.0
-        assert np.nanmax(stats["energy_ratio"]) <= 1.0
+        rows = stats_rows(out)
+        assert_energy_balance(rows, 1e-3, 2e-3, "tutorial")
         assert np.all(stats["n_particles"] == 1565)
 
 

@@ -80,6 +80,12 @@ class Context:
     #: (names, lo, hi, rows): the last wall lookup of :meth:`nearby_walls` and its box
     wall_cache: tuple = None
     _g_norm: float = None  # |g|, once (body_acceleration_norm)
+    #: This rank's work on its owned rows in the current step (J; J/m in 2D), added by
+    #: the stages (:meth:`add_work`): [0] the body force's (gravity and the earthquake),
+    #: [1] the Dirichlet constraints', [2] the solid's hourglass control's. The driver
+    #: zeroes it before each step and sums it over the ranks in the stats row
+    #: (docs/energy.md).
+    work: np.ndarray = field(default_factory=lambda: np.zeros(3))
 
     @property
     def at_sync_step(self) -> bool:
@@ -164,6 +170,13 @@ class Context:
         halo = proximity_halo(self.comm, p["x"][:n], p["phase"][:n] == PHASE_WALL, self.radius,
                               lo, hi, self.box)
         return halo.exchange(p.owned_fields(names), shift_fields=("x", "X"))
+
+    def add_work(self, body: float, constraint: float = 0.0, hourglass: float = 0.0) -> None:
+        """Add a stage's work on this rank's owned rows in this step to :attr:`work`
+        (:func:`parsph.core.energy.step_work`)."""
+        self.work[0] += body
+        self.work[1] += constraint
+        self.work[2] += hourglass
 
     def body_acceleration(self, t: float) -> np.ndarray:
         """g − s a_ground(t − t_0) (m/s²): gravity and the earthquake record, section 6.3.

@@ -40,6 +40,10 @@ class SolidContext(Context):
         step, its speed bounding the step, so a lookup serves several steps)."""
         return self.main.particles
 
+    def add_work(self, body: float, constraint: float = 0.0, hourglass: float = 0.0) -> None:
+        """The solid's work goes to the main context's step total."""
+        self.main.add_work(body, constraint, hourglass)
+
 
 class SolidView:
     """Owned solid rows of ``ctx`` (the main context) with their reference halo; the

@@ -37,6 +37,7 @@ from decomposition.reduce import global_any, global_max, global_min, global_redu
 from parsph.fluid import assembly, response, rheology, viscous
 from parsph.fluid.ppe import density_error_factor, ppe_csr
 from parsph.fluid.surface import surface_contact
+from parsph.core.energy import step_work
 from parsph.core.particles import max_speed
 from parsph.fluid.walls import row_order, system_rows, wall_slip
 from parsph.scene.materials import PHASE_FLUID, PHASE_WALL
@@ -334,6 +335,7 @@ class IISPH:
         n, dim, h, d = ctx.n_owned, ctx.dim, ctx.h, ctx.d
         self._t_halo = 0.0
         t0 = time.perf_counter()
+        v_start = p["v"][:n].copy()  # (the body force's work in the step)
         fluid = (p["phase"] == PHASE_FLUID).astype(np.uint8)
         coupled = coupling is not None
         for name, vector in STEP_FIELDS[:None if coupled else 2]:
@@ -477,7 +479,7 @@ class IISPH:
         self._halo(ctx, ["p"])
         # the work the density term of eq. (32) lets the pressure do: it asks a compressed
         # particle to expand by alpha (rho - rho0) / rho0 in the step, which a projection
-        # without it would not (a source of kinetic energy, counted in energy_bound)
+        # without it would not (a source of kinetic energy: stats.csv density_work)
         drho = rho[:n] - rho0[:n] if expansion else np.maximum(rho[:n] - rho0[:n], 0.0)
         work = alpha * p["p"][:n] * m[:n] / rho[:n] * drho / rho0[:n]
         density_work = float(np.maximum(work[inner], 0.0).sum())
@@ -541,6 +543,10 @@ class IISPH:
             t_asm += dt_asm
         t0 = time.perf_counter()
         np.add(p["x"][:n], dt * p["v"][:n], out=p["x"][:n], where=own_fluid[:, None])
+        # the body force's work on the fluid rows (a type-II solid's is the solid stage's)
+        ctx.add_work(step_work(p["m"], v_start, p["v"], own_fluid, n, dt, g[:dim],
+                               np.zeros((0, dim)))[0])
+        v_start = None
         t_asm += time.perf_counter() - t0
 
         (n_free, n_contacts, density_work, n_coupled), (max_div,), _ = global_reduce(

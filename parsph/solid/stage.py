@@ -30,6 +30,7 @@ from parsph.errors import NumericalError
 from parsph.scene.materials import PHASE_SOLID
 from parsph.solid import kernels
 from parsph.core.contact import NO_MASS, contact_points_moved, solid_wall_set, wall_contact
+from parsph.core.energy import step_work
 from parsph.core.particles import max_speed
 from parsph.solid.boundary import initial_velocity, velocity_masks
 from parsph.solid.update import CAM_CLAY, C, elastic_energy, material_table, stress_terms, \
@@ -84,10 +85,15 @@ class TLSPH:
         self.stats_columns = ("solid_plastic", "solid_contacts", "elastic_energy")
         if self.nl_strain is not None:
             self.stats_columns += ("nonlocal_iterations", "wall_s_nonlocal")
+        if self.num.ambient_pressure != 0.0:
+            self.stats_columns += ("ambient_energy",)
         if self.num.triaxial_csv:
             self.stats_columns += TRIAXIAL_COLUMNS
         self._stats = {}
         self._walls = None  # the wall-contact lists (_contact)
+        # a step's start velocities, body acceleration and constraint impulses: its work
+        # (finish_step, parsph.core.energy)
+        self._v0 = self._b = self._impulse = self._ahg = None
 
     # ------------------------------------------------------------------ set-up
     def _init_nonlocal(self, ctx, regular) -> None:
@@ -213,9 +219,12 @@ class TLSPH:
         v3 = self._pad(p["v"])
         x3 = self._pad(p["x"])
         kernels.stress_divergence(p["Q"], X, p["m"], fp, *args, acc)
-        if alpha > 0.0:
+        ahg = None
+        if alpha > 0.0:  # (its own array: the work of its force, finish_step)
+            ahg = np.zeros((n, 3))
             kernels.hourglass(x3, X, p["F"], p["m"], self.vol, p["modulus"], fp, *args, ctx.h,
-                              dim, alpha, acc)
+                              dim, alpha, ahg)
+            acc += ahg
         eps2, eps4 = self.num.jst_eps2, self.num.jst_eps4
         lap = lap4 = none = np.empty((0, 3))
         if eps2 > 0.0 or eps4 > 0.0:
@@ -231,16 +240,24 @@ class TLSPH:
                 kernels.laplacian_stored(lap, x3, coef, *args, lap4)
             coef = None
         g = np.asarray(ctx.body_acceleration(ctx.time), dtype=float)[:dim]
+        self._v0, self._b, self._impulse, self._ahg = p["v"][:n].copy(), g, None, ahg
         kernels.kick(p["v"], acc, lap, lap4, g, none if extra is None else extra, sel, n, dt,
                      cp * ctx.d, eps2, ctx.d ** 2 * eps4, dim)
         self.constrain(ctx)
         self._stats["solid_contacts"] = self._contact(ctx) if self.has_walls else 0
 
     def constrain(self, ctx) -> None:
-        """Dirichlet velocity constraints (``[[constraints]]``) on the owned rows."""
-        v = ctx.particles["v"]
-        n = ctx.particles.n_owned
-        v[:n][self.vmask] = self.vvalue[self.vmask]
+        """Dirichlet velocity constraints (``[[constraints]]``) on the owned rows; their
+        impulse is kept for their work in the step (:meth:`finish_step`)."""
+        p = ctx.particles
+        v, n, held = p["v"], p.n_owned, self.vmask
+        if not held.any():
+            return
+        if self._impulse is None:
+            self._impulse = np.zeros(held.shape)
+        mass = np.broadcast_to(p["m"][:n, None], held.shape)[held]
+        self._impulse[held] += mass * (self.vvalue[held] - v[:n][held])
+        v[:n][held] = self.vvalue[held]
 
     def finish_step(self, ctx, dt: float, stats: bool = True) -> None:
         r"""Steps 4-5: :math:`\dot{\mathbf F}` (eq. (14)) from the final velocities, the
@@ -272,6 +289,8 @@ class TLSPH:
             nl.iterations = 0
             if nl.due(ctx):
                 nl.solve(ctx, self.vol)
+        if self._v0 is not None:  # the step's work: body force, constraints, hourglass
+            self._add_work(ctx, dt)
         kernels.drift(p["x"], v, sel, n, dt, dim)
         self._stress_terms(ctx)
         if not stats:
@@ -282,6 +301,8 @@ class TLSPH:
             self._stats["nonlocal_iterations"] = self.nl_strain.iterations
             self._stats["wall_s_nonlocal"] = self.nl_strain.wall_s
             self.nl_strain.wall_s = 0.0
+        if self.num.ambient_pressure != 0.0:
+            self._stats["ambient_energy"] = self._ambient_energy(ctx)
         if self.num.triaxial_csv:
             self._triaxial(ctx, dt)
 
@@ -337,11 +358,38 @@ class TLSPH:
             lists["xall"] = np.zeros((0, ctx.dim))
         return lists
 
+    def _add_work(self, ctx, dt) -> None:
+        """The work of the body force, the constraints and the hourglass control on the
+        owned solids in this step (:func:`parsph.core.energy.step_work`) to the context's
+        step total; the hourglass control has no energy function (its force leaves out
+        the change of F with x), so its store is booked as the work its force did."""
+        p, n, dim = ctx.particles, ctx.particles.n_owned, ctx.dim
+        none = np.zeros((0, dim))
+        held = none if self._impulse is None else self._impulse
+        body, constraint = step_work(p["m"], self._v0, p["v"], self.sel, n, dt, self._b, held)
+        hourglass = 0.0
+        if self._ahg is not None:  # its impulse m dt a
+            impulse = (p["m"][:n, None] * dt) * self._ahg[:, :dim]
+            hourglass = step_work(p["m"], self._v0, p["v"], self.sel, n, dt, np.zeros(dim),
+                                  impulse)[1]
+        ctx.add_work(body, constraint, hourglass)
+        self._v0 = self._impulse = self._ahg = None
+
     def _elastic_energy(self, ctx) -> float:
         """Collective: the stored elastic energy of the owned solids (:func:`elastic_energy`:
         Hencky and Drucker-Prager, whose elastic part is Hencky's), summed over the ranks."""
         p, n = ctx.particles, ctx.particles.n_owned
         local = elastic_energy(self.tab, p["material"], self.sel, n, self.vol, p["eps_e"])
+        return global_sum(ctx.comm, local)
+
+    def _ambient_energy(self, ctx) -> float:
+        r"""Collective: :math:`p_{amb}\sum V_0 (J - 1)` over the owned solids (J, J/m in
+        2D), the potential of the uniform external pressure ``solid.ambient_pressure``
+        (:func:`parsph.solid.update.stress_terms`): the work the solid does against it."""
+        p, n = ctx.particles, ctx.particles.n_owned
+        solid = self.sel[:n]
+        J = np.linalg.det(p["F"][:n][solid]) if solid.any() else np.zeros(0)
+        local = self.num.ambient_pressure * float((self.vol[:n][solid] * (J - 1.0)).sum())
         return global_sum(ctx.comm, local)
 
     def _triaxial(self, ctx, dt) -> None:

@@ -40,7 +40,7 @@ from parsph.scene.budget import check_budget
 from parsph.scene.geometry import generate
 from parsph.step.pipeline import layout, needs_petsc, plan, uses_petsc
 from parsph.step.refresh import check_state, refresh, timed
-from parsph.step.stats import energy_budget, kinetic_energy, stats_columns, stats_row
+from parsph.step.stats import EnergyBalance, kinetic_energy, stats_columns, stats_row
 
 log = logging.getLogger("parsph")
 
@@ -264,7 +264,7 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
                 "scene_physics_keys": checkpoint.physics_keys(scene),
                 "dim": dim, "time": ctx.time, "step": ctx.step, "next_frame": next_frame,
                 "last_frame_step": last_frame_step, "next_checkpoint": next_ck,
-                "elastic_energy": last["ee"]}
+                "elastic_energy": last["ee"], "ambient_energy": last["amb"], **balance.state()}
         states = {s.name: s.state() for s in stages if hasattr(s, "state")}
         heap.release_free_pages(ctx.n_owned)  # (a run's last checkpoint had been its peak)
         checkpoint.write(ck_path, comm, particles, ctx.rcb, meta, states,
@@ -289,10 +289,12 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
             write_frame()  # frame 0: the initial state, or the checkpoint's (a branch)
             last_frame_step = ctx.step
         probes.sample_due(ctx)  # t = 0 or a branch's start (a restart goes on at the next)
-        # the energy budget of each step (stats.csv energy_bound, energy_ratio) needs the
-        # kinetic and elastic energy before it: of the initial state, or the checkpoint's
-        last = {"ke": kinetic_energy(ctx)[0],
-                "ee": float(ck.meta.get("elastic_energy", 0.0)) if ck is not None else 0.0}
+        # the energy balance (stats.csv mechanical_energy, docs/energy.md) starts from the
+        # initial state (a fresh solid is unstrained: no stored energy) or the checkpoint's
+        meta = ck.meta if ck is not None else {}
+        last = {"ee": float(meta.get("elastic_energy", 0.0)),
+                "amb": float(meta.get("ambient_energy", 0.0))}
+        balance = EnergyBalance(kinetic_energy(ctx)[0], last["ee"] + last["amb"], meta)
         max_steps = scene.run.max_steps
         stopping = False
         while scene.run.mode != "geometry" and not finished():
@@ -300,6 +302,7 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
                 break
             for name in ctx.timers:
                 ctx.timers[name] = 0.0
+            ctx.work[:] = 0.0  # the stages' work in this step (the energy balance)
             dt = _time_step(ctx, stages, end)
             for s in stages:
                 if hasattr(s, "step"):
@@ -323,12 +326,9 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
                 next_frame = _next_time(ctx.time, every)
             probes.sample_due(ctx)
             row = stats_row(ctx, dt, stages)
-            g = max(ctx.body_acceleration_norm(t) for t in (ctx.time - dt, ctx.time))
-            ee = float(row.get("elastic_energy") or 0.0)
-            row["energy_bound"], row["energy_ratio"] = energy_budget(
-                last["ke"], row["kinetic_energy"], last["ee"], ee, row.pop("mass"), g, dt,
-                float(row.get("density_work") or 0.0))
-            last.update(ke=row["kinetic_energy"], ee=ee)
+            last.update(ee=float(row.get("elastic_energy") or 0.0),
+                        amb=float(row.get("ambient_energy") or 0.0))
+            balance.update(row, last["ee"] + last["amb"])
             row["elapsed_s"] = time.perf_counter() - wall0
             stats.write(row)
             bar.update(ctx.time, ctx.step)
@@ -354,10 +354,14 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
     memory = global_sum(comm, particles.nbytes() + ctx.indptr.nbytes + ctx.indices.nbytes)
     pairs = global_sum(comm, len(ctx.indices))
     wall = time.perf_counter() - wall0
+    figures = balance.summary()
     log.info("done: %d steps to t = %.6g s in %.2f s wall; output in %s", ctx.step, ctx.time,
              wall, out)
+    log.info("energy balance: largest rise of a step %.3g, over any stretch %.3g, of the "
+             "peak kinetic energy (docs/energy.md)", figures["energy_rise_max"],
+             figures["energy_gain_max"])
     return {"steps": ctx.step, "time": ctx.time, "wall_s": wall, "particles": n_total,
-            "dim": ctx.dim, "out": out,
+            "dim": ctx.dim, "out": out, **figures,
             "bytes_per_particle": memory / max(n_total, 1),
             "neighbours_per_particle": pairs / max(n_total, 1)}
 
