@@ -4,6 +4,7 @@ import os
 import numpy as np
 import pytest
 
+from jobs.figures import record, run_figures
 from parsph.fluid import response as pressure
 from parsph.fluid import assembly, viscous
 from parsph.core.kernel import fac_grad, smoothing_length
@@ -117,9 +118,11 @@ def test_viscous_exchange_between_phases_conserves_momentum():
 @pytest.mark.one_rank  # the one-rank session only (CI time: the 2-rank one is the longer)
 def test_block_in_water_feels_its_buoyancy(comm, mpi_tmp_path):
     """A held TLSPH block in water at rest: the fluid's net force on it (eq. 45) is
-    rho_w g V upward (Archimedes), within 2 % in every window of 0.3-0.5 s up to 2 s. With
-    the partitioned coupling (the block's rows extrapolating the water's pressure) it
-    drifted upward by 16 % over 2 s (docs/coupling.md)."""
+    rho_w g V upward (Archimedes), within 0.66 % in every window of 0.3-0.5 s up to 2 s,
+    twice the 0.33 % the README states (measured: 0.9995 ... 0.9967 of rho_w g V, falling
+    slowly as the water settles). With the partitioned coupling (the block's rows
+    extrapolating the water's pressure) it drifted upward by 16 % over 2 s
+    (docs/coupling.md)."""
     scene = load_shared(comm, mpi_tmp_path, BLOCK_IN_WATER,
                         ["run.end_time=2.0", "output.every=0.5"])
     out = os.path.join(mpi_tmp_path, "out")
@@ -130,9 +133,13 @@ def test_block_in_water_feels_its_buoyancy(comm, mpi_tmp_path):
         fy = np.array([float(r["fsi_force_y"]) for r in rows])
         fx = np.array([float(r["fsi_force_x"]) for r in rows])
         buoyancy = RHO_W * G * 0.2 * 0.2
-        for a, b in ((0.05, 0.3), (0.3, 0.6), (0.6, 1.0), (1.0, 1.5), (1.5, 2.0)):
-            window = (t >= a) & (t < b)
-            assert fy[window].mean() == pytest.approx(buoyancy, rel=0.02), (a, b)
+        windows = ((0.05, 0.3), (0.3, 0.6), (0.6, 1.0), (1.0, 1.5), (1.5, 2.0))
+        ratios = [fy[(t >= a) & (t < b)].mean() / buoyancy for a, b in windows]
+        record("buoyancy", {"windows": [list(w) for w in windows], "ratios": ratios,
+                            "max_error_pc": 100 * max(abs(r - 1) for r in ratios)},
+               ranks=comm.size)
+        for window, ratio in zip(windows, ratios):
+            assert ratio == pytest.approx(1.0, abs=0.0066), window
         assert abs(fx.mean()) < 1e-3 * buoyancy
         assert min(int(r["n_coupled"]) for r in rows) > 0
         f = last_frame(out)
@@ -407,13 +414,20 @@ def test_slope_failure_3d_at_a_small_size(comm, mpi_tmp_path):
 
 @pytest.mark.mpi(min_size=2)
 def test_phase_change_one_vs_two_ranks(comm, mpi_tmp_path):
-    """Through phase changes (and fluid solves), 1 and 2 ranks agree by global id."""
+    """Through phase changes (and fluid solves), 1 and 2 ranks agree by global id: the
+    same particles change phase, and positions agree to 1e-9 m, twice the 5e-10 m the
+    README states (round-off through the solves' different orders of summation, grown
+    over the run; the solves' own tolerance, rtol 1e-8, would allow far more)."""
     scene = load_shared(comm, mpi_tmp_path, QUICK_COLLAPSE)
     one, two = run_on_one_and_two(comm, scene, mpi_tmp_path)
     if comm.rank == 0:
-        a, _ = assert_agree_by_id(one, two)
-        assert (a["phase"] == 1).sum() > 20  # phase changes happened
+        a, b = assert_agree_by_id(one, two)
         sa, sb = stats_rows(one), stats_rows(two)
+        record("one_vs_two_phase_change", {
+            "max_dx_m": np.abs(a["x"] - b["x"]).max(), "max_dv_m_s": np.abs(a["v"] - b["v"]).max(),
+            "n_fluidised": int(sa[-1]["n_fluidised"]), "steps": len(sa)}, ranks=comm.size)
+        assert np.abs(a["x"] - b["x"]).max() < 1e-9
+        assert (a["phase"] == 1).sum() > 20  # phase changes happened
         assert sa[-1]["n_fluidised"] == sb[-1]["n_fluidised"]
 
 
@@ -576,16 +590,39 @@ def test_slope_failure_converges(comm, mpi_tmp_path):
             deposit = -last["x"][last["phase"] != 2, 0]  # along front_direction, -x
             results[d] = (float(np.percentile(deposit, 99)),
                           float(rows[-1]["fluidised_volume"]))
-            print(f"d = {d} m: run-out (99 % of the mass) {results[d][0]:.3f} m, farthest "
-                  f"particle {float(rows[-1]['front']):.3f} m, fluidised "
-                  f"{results[d][1]:.4f} m^2, {len(rows)} steps, median PPE iterations "
-                  f"{ppe:g}, largest energy ratio "
-                  f"{max(float(r['energy_ratio']) for r in rows):.3f}")
+            figures = run_figures(os.path.join(mpi_tmp_path, f"slope_{d}"), (-1.0, 0.0))
+            assert figures["runout_99_m"] == pytest.approx(results[d][0])
+            record(f"slope_failure_d{d}", {"d_m": d, **figures, "median_ppe_iterations": ppe},
+                   ranks=comm.size)
     if comm.rank == 0:
         change = {k: (abs(results[0.035][k] - results[0.05][k]),
                       abs(results[0.025][k] - results[0.035][k])) for k in (0, 1)}
         assert change[0][1] < change[0][0], results  # the run-out
         assert change[1][1] < change[1][0], results  # the fluidised volume
+
+
+@pytest.mark.slow
+@pytest.mark.mpi(min_size=2)
+def test_granular_collapse_scene(comm, mpi_tmp_path):
+    """The built-in ``granular_collapse`` as it is (2 ranks, to 0.5 s; the README's
+    figures): the column fluidises and spreads along the floor, comes to rest (kinetic
+    energy below 5 % of its peak by the end) and no step raises the kinetic energy above
+    what gravity and the elastic energy can supply. The README's count and front are
+    this run's (``figures granular_collapse``), asserted within the bands below."""
+    scene = load_scene("granular_collapse", ["output.progress=false"])
+    out = os.path.join(mpi_tmp_path, "collapse")
+    run(scene, out, comm=comm, progress=False)
+    if comm.rank != 0:
+        return
+    figures = run_figures(out, scene.output.front_direction)
+    rows = stats_rows(out)
+    ke = np.array([float(r["kinetic_energy"]) for r in rows])
+    record("granular_collapse", {**figures, "ke_end_over_peak": ke[-1] / ke.max()},
+           ranks=comm.size)
+    assert figures["max_energy_ratio"] <= 1.0
+    assert ke[-1] < 0.05 * ke.max()
+    assert 400 <= figures["n_fluidised"] <= 530  # 465 measured
+    assert 0.35 < figures["front_m"] < 0.43  # 0.39 m measured
 
 
 def _periodic_scene(copies, periodic, end):

@@ -9,6 +9,7 @@ import os
 import numpy as np
 import pytest
 
+from jobs.figures import record
 from parsph.step.run import _build
 from parsph.scene.loader import load_scene
 from tests.scenes import (G_2D, dense_system, hencky, load_shared, scene_text, stats_rows,
@@ -304,10 +305,13 @@ def test_coupled_explicit_viscous_step_agrees_with_the_implicit_solve(comm, mpi_
 
 
 #: Tolerance of the gate's free-end displacement, mean |simulated - measured| over the
-#: measured points to 0.4 s (m). Published simulations of the same experiment differ from
-#: it by 3.6 mm (Antoci et al.'s own SPH, horizontal) to 10-11 mm (Yang et al.'s SPH-FEM);
-#: we ask for the latter's spread (docs/coupling.md, "elastic_gate").
-GATE_TOLERANCE = {"x": 0.011, "y": 0.011}
+#: measured points to 0.4 s (m), each no more than half the mean measured displacement on
+#: its axis, so that a gate that never moved on an axis fails by a factor of two (the mean
+#: measured |dx| is 34.1 mm, |dy| 10.8 mm). Horizontal: 11 mm, the spread of published
+#: simulations of the same experiment (Antoci et al.'s own SPH 3.6 mm, Yang et al.'s
+#: SPH-FEM 10-11 mm; docs/coupling.md, "elastic_gate"), 1.5x the 7.5 mm measured here.
+#: Vertical: 5.4 mm, half the vertical signal (10.8 mm), 1.3x the 4.2 mm measured here.
+GATE_TOLERANCE = {"x": 0.011, "y": 0.0054}
 
 
 @pytest.mark.slow
@@ -316,7 +320,7 @@ def test_elastic_gate_against_the_experiment(comm, mpi_tmp_path):
     """``elastic_gate`` (Antoci, Gallati & Sibilla 2007) on 2 ranks to 0.4 s, the built-in
     scene as it is: the free end opens as measured (within the spread of published
     simulations), it stays stable (no step makes energy) and the gate survives."""
-    from parsph.verify.coupling import free_end, gate_errors
+    from parsph.verify.coupling import free_end, gate_errors, measured_gate
     from parsph.step.run import run
 
     scene = load_scene("elastic_gate", ["output.progress=false"])
@@ -333,11 +337,16 @@ def test_elastic_gate_against_the_experiment(comm, mpi_tmp_path):
     assert 0.4 <= t[-1] <= 0.4 + late
     assert 0.03 < dx.max() < 0.06  # opened (the experiment: 46 mm at 0.16 s)
     ex, ey = gate_errors(out)
-    print(f"elastic_gate: mean |error| {ex * 1e3:.1f} mm (dx), {ey * 1e3:.1f} mm (dy), "
-          f"max dx {dx.max() * 1e3:.1f} mm")
+    ratio = np.array([float(r["energy_ratio"]) for r in rows])
+    record("elastic_gate", {"error_dx_mm": ex * 1e3, "error_dy_mm": ey * 1e3,
+                            "max_dx_mm": dx.max() * 1e3, "max_dy_mm": dy.max() * 1e3,
+                            "end_time_s": float(rows[-1]["time"]), "steps": len(rows),
+                            "particles": int(rows[-1]["n_particles"]),
+                            "max_energy_ratio": ratio.max()}, ranks=comm.size)
+    for axis, tolerance in GATE_TOLERANCE.items():  # a gate at rest must fail (above)
+        assert tolerance <= 0.5 * np.abs(measured_gate(axis)[1]).mean(), axis
     assert ex < GATE_TOLERANCE["x"], f"horizontal: mean error {ex * 1e3:.1f} mm"
     assert ey < GATE_TOLERANCE["y"], f"vertical: mean error {ey * 1e3:.1f} mm"
-    ratio = np.array([float(r["energy_ratio"]) for r in rows])
     assert ratio.max() <= 1.0, f"t = {rows[int(np.argmax(ratio))]['time']} s: {ratio.max():.2f}"
 
 
