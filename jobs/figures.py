@@ -221,6 +221,7 @@ def run_figures(out: str, direction=None) -> dict:
         if len(moving) else t[0]
     first = read_frame(os.path.join(out, "particles.h5"), 0)
     last = read_frame(os.path.join(out, "particles.h5"), "last")
+    fig["particles"] = len(first["phase"])
     for phase, key in ((0, "solid_particles"), (1, "fluid_particles"), (2, "wall_particles")):
         fig[key] = int(np.count_nonzero(last["phase"] == phase))
         fig[f"{key}_start"] = int(np.count_nonzero(first["phase"] == phase))

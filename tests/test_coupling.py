@@ -119,8 +119,8 @@ def test_viscous_exchange_between_phases_conserves_momentum():
 def test_block_in_water_feels_its_buoyancy(comm, mpi_tmp_path):
     """A held TLSPH block in water at rest: the fluid's net force on it (eq. 45) is
     rho_w g V upward (Archimedes), within 0.66 % in every window of 0.3-0.5 s up to 2 s,
-    twice the 0.33 % the README states (measured: 0.9995 ... 0.9967 of rho_w g V, falling
-    slowly as the water settles). With the partitioned coupling (the block's rows
+    twice the largest error measured (0.9995 ... 0.9968 of rho_w g V, falling slowly as
+    the water settles). With the partitioned coupling (the block's rows
     extrapolating the water's pressure) it drifted upward by 16 % over 2 s
     (docs/coupling.md)."""
     scene = load_shared(comm, mpi_tmp_path, BLOCK_IN_WATER,
@@ -415,9 +415,10 @@ def test_slope_failure_3d_at_a_small_size(comm, mpi_tmp_path):
 @pytest.mark.mpi(min_size=2)
 def test_phase_change_one_vs_two_ranks(comm, mpi_tmp_path):
     """Through phase changes (and fluid solves), 1 and 2 ranks agree by global id: the
-    same particles change phase, and positions agree to 1e-9 m, twice the 5e-10 m the
-    README states (round-off through the solves' different orders of summation, grown
-    over the run; the solves' own tolerance, rtol 1e-8, would allow far more)."""
+    same particles change phase, and positions agree to 1e-9 m (measured 5.7e-11 m after
+    349 phase changes, 5e-10 m in an earlier round: round-off through the solves'
+    different orders of summation, grown over the run; the solves' own tolerance, rtol
+    1e-8, would allow far more)."""
     scene = load_shared(comm, mpi_tmp_path, QUICK_COLLAPSE)
     one, two = run_on_one_and_two(comm, scene, mpi_tmp_path)
     if comm.rank == 0:
@@ -608,7 +609,10 @@ def test_granular_collapse_scene(comm, mpi_tmp_path):
     figures): the column fluidises and spreads along the floor, comes to rest (kinetic
     energy below 5 % of its peak by the end) and no step raises the kinetic energy above
     what gravity and the elastic energy can supply. The README's count and front are
-    this run's (``figures granular_collapse``), asserted within the bands below."""
+    this run's (``figures granular_collapse``), asserted within +-15 % and +-0.035 m of
+    what was measured (401, 0.371 m): round-off alone moves a phase-change run about as
+    much (nine runs of the 2D slope differing only in round-off fluidised 193-199
+    particles and ran out 2.34-2.82 m, docs/slope.md)."""
     scene = load_scene("granular_collapse", ["output.progress=false"])
     out = os.path.join(mpi_tmp_path, "collapse")
     run(scene, out, comm=comm, progress=False)
@@ -621,8 +625,30 @@ def test_granular_collapse_scene(comm, mpi_tmp_path):
            ranks=comm.size)
     assert figures["max_energy_ratio"] <= 1.0
     assert ke[-1] < 0.05 * ke.max()
-    assert 400 <= figures["n_fluidised"] <= 530  # 465 measured
-    assert 0.35 < figures["front_m"] < 0.43  # 0.39 m measured
+    assert 340 <= figures["n_fluidised"] <= 460
+    assert 0.336 < figures["front_m"] < 0.406
+
+
+@pytest.mark.slow
+@pytest.mark.mpi(min_size=2)
+def test_aso_like_scene(comm, mpi_tmp_path):
+    """The built-in ``aso_like`` as it is (2 ranks, to 6 s under its record; the
+    README's figures): its 16,968 soil particles (the lattice of the layers: exact), some
+    fluidise under the strong shaking and none before it (the record's strong part starts
+    near 3 s), within +-30 % of the 74 measured (69, 71 and 74 in three rounds whose
+    solves differed within their tolerances, docs/aso_like.md), and no step raises the
+    kinetic energy above what gravity, the base motion and the elastic energy supply."""
+    scene = load_scene("aso_like", ["output.progress=false"])
+    out = os.path.join(mpi_tmp_path, "aso")
+    run(scene, out, comm=comm, progress=False)
+    if comm.rank != 0:
+        return
+    figures = run_figures(out)
+    record("aso_like", figures, ranks=comm.size)
+    assert figures["solid_particles_start"] == 16968
+    assert 52 <= figures["n_fluidised"] <= 96
+    assert figures["first_fluidised_s"] > 3.0
+    assert figures["max_energy_ratio"] <= 1.0
 
 
 def _periodic_scene(copies, periodic, end):

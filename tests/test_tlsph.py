@@ -225,9 +225,10 @@ def test_triaxial_drained_path(comm, mpi_tmp_path, scene_name, p0):
 def _yield_on_the_drained_path(p0, pc, M):
     """``(p', q)`` where q = 3 (p' - p'0) meets the initial modified Cam-Clay surface
     q^2 = M^2 p' (pc - p'): the peak of a single material point of the heavy test."""
-    # 9 (p - p0)^2 = M^2 p (pc - p):  (9 + M^2) p^2 - (18 p0 + M^2 pc) p + 9 p0^2 = 0
+    # 9 (p - p0)^2 = M^2 p (pc - p):  (9 + M^2) p^2 - (18 p0 + M^2 pc) p + 9 p0^2 = 0; the
+    # larger root is on the compression side of the path (p' > p'0, q > 0)
     a, b, c = 9.0 + M * M, -(18.0 * p0 + M * M * pc), 9.0 * p0 * p0
-    p = (-b - np.sqrt(b * b - 4 * a * c)) / (2 * a)
+    p = (-b + np.sqrt(b * b - 4 * a * c)) / (2 * a)
     return p, 3.0 * (p - p0)
 
 
