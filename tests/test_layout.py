@@ -86,7 +86,8 @@ def test_the_scan_sees_imports_in_functions_and_relative_ones():
     """The scan the checks below rely on: imports at any depth, relative ones resolved."""
     source = ("import numpy\n"
               "def f():\n    from mpi4py import MPI\n    if 1:\n        import petsc4py\n"
-              "class C:\n    def g(self):\n        from . import heap\n        from ..errors import E\n")
+              "class C:\n    def g(self):\n        from . import heap\n"
+              "        from ..errors import E\n")
     found = set(imports(source, "base.sub.mod", known={"base.sub.heap", "base.errors"}))
     assert found == {"numpy", "mpi4py", "petsc4py", "base.sub.heap", "base.errors"}
     assert "petsc4py" in set(_imports_of("solvers.petsc_env"))  # imported inside a function
@@ -227,8 +228,8 @@ def test_test_modules_are_dealt_to_balanced_shards():
     deal = shard_of_modules(modules, 2)
     assert deal == shard_of_modules(list(reversed(modules)), 2)
     assert sorted(deal) == modules and set(deal.values()) == {0, 1}
-    cheap = {"test_benchlib", "test_geometry", "test_geotiff", "test_heap", "test_layout",
-             "test_loading", "test_mesh", "test_scene"}  # under a second each
+    cheap = {"test_benchlib", "test_figures", "test_geometry", "test_geotiff", "test_heap",
+             "test_layout", "test_loading", "test_mesh", "test_scene"}  # under a second each
     assert set(modules) - set(MODULE_SECONDS) == cheap
     load = [sum(MODULE_SECONDS.get(m, 1.0) for m in modules if deal[m] == k) for k in (0, 1)]
     assert max(load) <= 1.1 * min(load), load
