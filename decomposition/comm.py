@@ -15,6 +15,9 @@ from contextlib import contextmanager
 
 from mpi4py import MPI
 
+import base.errors as errors
+from base.errors import ParsphError
+
 
 class Tag(enum.IntEnum):
     """Every point-to-point tag parsph uses (no tags hashed from names)."""
@@ -35,8 +38,6 @@ def raise_if_any(comm, exc: BaseException | None) -> None:
     The exception raised everywhere is the one of the lowest failing rank, with its
     type and message (types other than parsph's own become ``RuntimeError``).
     """
-    from parsph.errors import ParsphError  # decomposition knows no physics, only the error type
-
     if comm.size == 1:  # nothing to agree on (a step checks several times)
         if exc is not None:
             raise exc
@@ -50,8 +51,6 @@ def raise_if_any(comm, exc: BaseException | None) -> None:
             raise exc
         name, message, is_parsph = item
         if is_parsph:
-            import parsph.errors as errors
-
             cls = getattr(errors, name, ParsphError)
             raise cls(message)
         raise RuntimeError(f"rank {rank} failed: {name}: {message}")
@@ -92,11 +91,9 @@ def on_root(comm, fn, *args):
     """Collective: ``fn(*args)`` on rank 0 only; every rank gets its result or its error.
 
     For work that must happen once (reading and checking an input file): a
-    :class:`~parsph.errors.ParsphError` raised on rank 0 is raised on every rank with
+    :class:`~base.errors.ParsphError` raised on rank 0 is raised on every rank with
     the same message, so one message is printed and no rank waits.
     """
-    from parsph.errors import ParsphError
-
     payload = None
     if comm.rank == 0:
         try:
@@ -105,7 +102,5 @@ def on_root(comm, fn, *args):
             payload = ("error", (type(exc).__name__, str(exc)))
     status, value = comm.bcast(payload, root=0)
     if status == "error":
-        import parsph.errors as errors
-
         raise getattr(errors, value[0], ParsphError)(value[1])
     return value

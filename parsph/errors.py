@@ -1,22 +1,9 @@
-"""User-facing errors.
+"""User-facing errors (the types live in :mod:`base.errors`, below every package; the same classes).
 
 A :class:`ParsphError` carries a message that says what was wrong and what to do. The
 CLI prints it once, on rank 0, without a traceback, and exits non-zero. Anything else
 that escapes is a bug and keeps its traceback.
 """
+from base.errors import NumericalError, ParsphError, Preempted, SceneError
 
-
-class ParsphError(Exception):
-    """Bad input or a run that cannot go on: the message names the key, file or value."""
-
-
-class SceneError(ParsphError):
-    """A scene file or ``--set`` override is invalid."""
-
-
-class NumericalError(ParsphError):
-    """A run stopped on a NaN/inf, a diverged solve or a particle leaving the domain."""
-
-
-class Preempted(ParsphError):
-    """The run was asked to stop (SIGTERM/SIGUSR1) and wrote a checkpoint to restart from."""
+__all__ = ["ParsphError", "SceneError", "NumericalError", "Preempted"]

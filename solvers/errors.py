@@ -1,7 +1,7 @@
 """Solver failures, agreed on by every rank: one rank's error is raised on all of them."""
 from __future__ import annotations
 
-from parsph.errors import NumericalError
+from base.errors import NumericalError
 
 
 class SolverError(NumericalError):

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from parsph.core import heap
+from base import heap
 from solvers.csr import (check_block, count_diagonal, prepare_block, row_block_counts,
                          sparsify, split_diagonal_block, split_in_place)
 from solvers.errors import SolverError, agree
@@ -377,7 +377,7 @@ class MatrixAssembly:
         arrays, 61 bytes per entry at its peak against 15 kept; made as such, 20. That
         conversion of the PPE's sparser copy, every fresh set-up, had become the peak RSS
         of the 3D tank of ``jobs/bench_memory.py`` once the heap's free pages were handed
-        back before it (:mod:`parsph.core.heap`; docs/performance.md)."""
+        back before it (:mod:`base.heap`; docs/performance.md)."""
         preallocate = _hypre_preallocation()
         if preallocate is None:
             return self._hypre_converted(indptr, cols, values)

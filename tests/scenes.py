@@ -288,11 +288,11 @@ def run_on_one_and_two(comm, scene, tmpdir):
     """The keystone comparison: run ``scene`` on rank 0 alone, then on all ranks.
 
     Returns the two run directories (``tmpdir/one``, ``tmpdir/two``); compare their
-    frames by global id on rank 0.
+    frames by global id on rank 0. The ranks agree after each run whether it failed
+    (:func:`agree_on_failure`): when rank 0's one-rank run raises, every rank raises
+    instead of the others waiting for rank 0 in the first collective of the two-rank run.
     """
     import os
-
-    from mpi4py import MPI
 
     from parsph.step.pipeline import needs_petsc, plan
     from parsph.step.run import run
@@ -302,12 +302,47 @@ def run_on_one_and_two(comm, scene, tmpdir):
 
         solvers.init([])
     one_dir, two_dir = os.path.join(tmpdir, "one"), os.path.join(tmpdir, "two")
-    one = comm.Split(0 if comm.rank == 0 else MPI.UNDEFINED, comm.rank)
-    if comm.rank == 0:
-        run(scene, one_dir, comm=one, progress=False)
-        one.Free()
-    run(scene, two_dir, comm=comm, progress=False)
+    alone_on_rank_zero(comm, lambda one: run(scene, one_dir, comm=one, progress=False))
+    error = None
+    try:
+        run(scene, two_dir, comm=comm, progress=False)
+    except Exception as exc:  # noqa: BLE001 - raised on every rank below
+        error = exc
+    agree_on_failure(comm, error)
     return one_dir, two_dir
+
+
+def alone_on_rank_zero(comm, fn):
+    """Collective: ``fn(one)`` on rank 0, ``one`` a communicator of rank 0 alone; its
+    result there, None elsewhere. If ``fn`` raises, every rank raises
+    (:func:`agree_on_failure`), so no rank goes on into a collective rank 0 never joins."""
+    from mpi4py import MPI
+
+    one = comm.Split(0 if comm.rank == 0 else MPI.UNDEFINED, comm.rank)
+    result = error = None
+    if comm.rank == 0:
+        try:
+            result = fn(one)
+        except Exception as exc:  # noqa: BLE001 - raised on every rank below
+            error = exc
+        finally:
+            one.Free()
+    agree_on_failure(comm, error)
+    return result
+
+
+def agree_on_failure(comm, error):
+    """Collective: if any rank has an ``error``, raise on every rank, a failing rank its
+    own error (its traceback), the others the lowest failing rank's type and message
+    (:func:`decomposition.comm.raise_if_any`)."""
+    from decomposition.comm import raise_if_any
+
+    try:
+        raise_if_any(comm, error)
+    except Exception:
+        if error is not None:
+            raise error from None
+        raise
 
 
 def assert_agree_by_id(one, two, x_tol=1e-6, v_tol=1e-4):

@@ -4,6 +4,7 @@ import os
 import numpy as np
 import pytest
 
+from jobs.figures import record, run_figures
 from parsph.fluid import response as pressure
 from parsph.fluid import assembly, viscous
 from parsph.core.kernel import fac_grad, smoothing_length
@@ -118,9 +119,11 @@ def test_viscous_exchange_between_phases_conserves_momentum():
 @pytest.mark.one_rank  # the one-rank session only (CI time: the 2-rank one is the longer)
 def test_block_in_water_feels_its_buoyancy(comm, mpi_tmp_path):
     """A held TLSPH block in water at rest: the fluid's net force on it (eq. 45) is
-    rho_w g V upward (Archimedes), within 2 % in every window of 0.3-0.5 s up to 2 s. With
-    the partitioned coupling (the block's rows extrapolating the water's pressure) it
-    drifted upward by 16 % over 2 s (docs/coupling.md)."""
+    rho_w g V upward (Archimedes), within 0.66 % in every window of 0.3-0.5 s up to 2 s,
+    twice the largest error measured (0.9995 ... 0.9968 of rho_w g V, falling slowly as
+    the water settles). With the partitioned coupling (the block's rows
+    extrapolating the water's pressure) it drifted upward by 16 % over 2 s
+    (docs/coupling.md)."""
     scene = load_shared(comm, mpi_tmp_path, BLOCK_IN_WATER,
                         ["run.end_time=2.0", "output.every=0.5"])
     out = os.path.join(mpi_tmp_path, "out")
@@ -131,9 +134,13 @@ def test_block_in_water_feels_its_buoyancy(comm, mpi_tmp_path):
         fy = np.array([float(r["fsi_force_y"]) for r in rows])
         fx = np.array([float(r["fsi_force_x"]) for r in rows])
         buoyancy = RHO_W * G * 0.2 * 0.2
-        for a, b in ((0.05, 0.3), (0.3, 0.6), (0.6, 1.0), (1.0, 1.5), (1.5, 2.0)):
-            window = (t >= a) & (t < b)
-            assert fy[window].mean() == pytest.approx(buoyancy, rel=0.02), (a, b)
+        windows = ((0.05, 0.3), (0.3, 0.6), (0.6, 1.0), (1.0, 1.5), (1.5, 2.0))
+        ratios = [fy[(t >= a) & (t < b)].mean() / buoyancy for a, b in windows]
+        record("buoyancy", {"windows": [list(w) for w in windows], "ratios": ratios,
+                            "max_error_pc": 100 * max(abs(r - 1) for r in ratios)},
+               ranks=comm.size)
+        for window, ratio in zip(windows, ratios):
+            assert ratio == pytest.approx(1.0, abs=0.0066), window
         assert abs(fx.mean()) < 1e-3 * buoyancy
         assert min(int(r["n_coupled"]) for r in rows) > 0
         f = last_frame(out)
@@ -413,13 +420,21 @@ def test_slope_failure_3d_at_a_small_size(comm, mpi_tmp_path):
 
 @pytest.mark.mpi(min_size=2)
 def test_phase_change_one_vs_two_ranks(comm, mpi_tmp_path):
-    """Through phase changes (and fluid solves), 1 and 2 ranks agree by global id."""
+    """Through phase changes (and fluid solves), 1 and 2 ranks agree by global id: the
+    same particles change phase, and positions agree to 1e-9 m (measured 5.7e-11 m after
+    349 phase changes, 5e-10 m in an earlier round: round-off through the solves'
+    different orders of summation, grown over the run; the solves' own tolerance, rtol
+    1e-8, would allow far more)."""
     scene = load_shared(comm, mpi_tmp_path, QUICK_COLLAPSE)
     one, two = run_on_one_and_two(comm, scene, mpi_tmp_path)
     if comm.rank == 0:
-        a, _ = assert_agree_by_id(one, two)
-        assert (a["phase"] == 1).sum() > 20  # phase changes happened
+        a, b = assert_agree_by_id(one, two)
         sa, sb = stats_rows(one), stats_rows(two)
+        record("one_vs_two_phase_change", {
+            "max_dx_m": np.abs(a["x"] - b["x"]).max(), "max_dv_m_s": np.abs(a["v"] - b["v"]).max(),
+            "n_fluidised": int(sa[-1]["n_fluidised"]), "steps": len(sa)}, ranks=comm.size)
+        assert np.abs(a["x"] - b["x"]).max() < 1e-9
+        assert (a["phase"] == 1).sum() > 20  # phase changes happened
         assert sa[-1]["n_fluidised"] == sb[-1]["n_fluidised"]
 
 
@@ -581,8 +596,15 @@ def test_slope_failure_converges(comm, mpi_tmp_path):
     assert sizes == [0.05, 0.035, 0.025, 0.0177]
     if comm.rank == 0:
         for i, (d, r) in enumerate(zip(sizes, rows)):
-            stats = stats_rows(os.path.join(mpi_tmp_path, "runs", f"{i:03d}"))
+            out = os.path.join(mpi_tmp_path, "runs", f"{i:03d}")
+            stats = stats_rows(out)
             _slope_checks(stats, d)
+            ppe = np.median([float(s["ppe_iterations"]) for s in stats
+                             if float(s["n_fluid"]) > 0])
+            figures = run_figures(out, (-1.0, 0.0))
+            assert figures["runout_99_m"] == pytest.approx(r["q_runout_m"])
+            record(f"slope_failure_d{d}", {"d_m": d, **figures, "median_ppe_iterations": ppe},
+                   ranks=comm.size)
             print(f"d = {d} m: run-out (99 % of the mass) {r['q_runout_m']:.3f} m, farthest "
                   f"particle {float(stats[-1]['front']):.3f} m, fluidised "
                   f"{r['q_fluidised']:.4f} m^2 ({stats[-1]['n_fluidised']} particles), at "
@@ -595,6 +617,55 @@ def test_slope_failure_converges(comm, mpi_tmp_path):
             first, last = abs(q[1] - q[0]), abs(q[3] - q[2])
             assert last < 0.05 * abs(q[3]), (what, q)
             assert last < first, (what, q)
+
+
+@pytest.mark.slow
+@pytest.mark.mpi(min_size=2)
+def test_granular_collapse_scene(comm, mpi_tmp_path):
+    """The built-in ``granular_collapse`` as it is (2 ranks, to 0.5 s; the README's
+    figures): the column fluidises and spreads along the floor, comes to rest (kinetic
+    energy below 5 % of its peak by the end) and no step raises the kinetic energy above
+    what gravity and the elastic energy can supply. The README's count and front are
+    this run's (``figures granular_collapse``), asserted within +-15 % and +-0.035 m of
+    what was measured (401, 0.371 m): round-off alone moves a phase-change run about as
+    much (nine runs of the 2D slope differing only in round-off fluidised 193-199
+    particles and ran out 2.34-2.82 m, docs/slope.md)."""
+    scene = load_scene("granular_collapse", ["output.progress=false"])
+    out = os.path.join(mpi_tmp_path, "collapse")
+    run(scene, out, comm=comm, progress=False)
+    if comm.rank != 0:
+        return
+    figures = run_figures(out, scene.output.front_direction)
+    rows = stats_rows(out)
+    ke = np.array([float(r["kinetic_energy"]) for r in rows])
+    record("granular_collapse", {**figures, "ke_end_over_peak": ke[-1] / ke.max()},
+           ranks=comm.size)
+    assert_energy_balance(rows, 1e-4, 1e-3, "granular_collapse")
+    assert ke[-1] < 0.05 * ke.max()
+    assert 340 <= figures["n_fluidised"] <= 460
+    assert 0.336 < figures["front_m"] < 0.406
+
+
+@pytest.mark.slow
+@pytest.mark.mpi(min_size=2)
+def test_aso_like_scene(comm, mpi_tmp_path):
+    """The built-in ``aso_like`` as it is (2 ranks, to 6 s under its record; the
+    README's figures): its 16,968 soil particles (the lattice of the layers: exact), some
+    fluidise under the strong shaking and none before it (the record's strong part starts
+    near 3 s), within +-30 % of the 74 measured (69, 71 and 74 in three rounds whose
+    solves differed within their tolerances, docs/aso_like.md), and no step raises the
+    kinetic energy above what gravity, the base motion and the elastic energy supply."""
+    scene = load_scene("aso_like", ["output.progress=false"])
+    out = os.path.join(mpi_tmp_path, "aso")
+    run(scene, out, comm=comm, progress=False)
+    if comm.rank != 0:
+        return
+    figures = run_figures(out)
+    record("aso_like", figures, ranks=comm.size)
+    assert figures["solid_particles_start"] == 16968
+    assert 52 <= figures["n_fluidised"] <= 96
+    assert figures["first_fluidised_s"] > 3.0
+    assert_energy_balance(stats_rows(out), 1e-4, 1e-3, "aso_like")
 
 
 def _periodic_scene(copies, periodic, end):

@@ -9,6 +9,7 @@ import pytest
 from parsph.io import read_frame, read_frames
 from parsph.step.run import run
 from parsph.scene.loader import load_scene
+from jobs.figures import record
 from tests.scenes import LONE_ROW, assert_energy_balance, load_shared, stats_rows
 from tests.test_iisph import front_positions
 
@@ -70,7 +71,8 @@ def _slump_checks(scene, out):
 
 def test_long_hydrostatic_run_stays_at_rest(comm, mpi_tmp_path):
     """20 s of water in the tank at a coarse d = H / 10 (affordable in a test), default
-    numerics: at rest in every frame (rms speed < 1 %, any particle < 5 % of sqrt(g H)),
+    numerics: at rest in every frame (rms speed < 1 % of sqrt(g H), about twice the
+    largest measured, 0.49 %; any particle < 5 %),
     the surface flat within half a spacing, nothing leaks. Before the corrected PPE
     Laplacian, the unclamped wall pressure and the two-sided density term
     (docs/iisph.md) the top layers sloshed at 6 % of sqrt(g H)."""
@@ -84,6 +86,9 @@ def test_long_hydrostatic_run_stays_at_rest(comm, mpi_tmp_path):
         dt = max(float(r["dt"]) for r in stats_rows(out))
         reuse = scene.fluid.preconditioner_reuse
         assert 20.0 <= frames[-1][0] <= 20.0 + reuse * dt * (1 + 1e-9)
+        rms = [np.sqrt(np.mean((f["v"][f["phase"] == 1] ** 2).sum(1))) / scale
+               for _, f in frames]
+        record("hydrostatic_20s", {"max_rms_speed_pc": 100 * max(rms)}, ranks=comm.size)
         for _, f in frames:
             fl = f["phase"] == 1
             assert _inside_tank(f, (0.0, 0.0), (1.0, 1.2), 0.5 * d)
@@ -107,7 +112,8 @@ def test_lone_bingham_row_slides_to_rest_on_the_floor(comm, mpi_tmp_path):
     PPE does not hold them off the wall, the contact rule does (fluid.surface_wall_contact,
     docs/iisph.md): never below their resting height, and they stop after about the
     Coulomb distance v0^2 / (2 tan(phi') g) = 0.144 m of the Bingham yield (eq. 40) with
-    the wall's normal impulse as pressure (measured 0.127 m: the no-slip viscous drag adds)."""
+    the wall's normal impulse as pressure (measured 0.116 m, 19 % short: the no-slip
+    viscous drag adds; the test allows twice that, 38 % short, to 5 % long)."""
     scene, frames = _lone_row(comm, mpi_tmp_path, True, "contact")
     if comm.rank == 0:
         d = scene.domain.particle_size
@@ -118,7 +124,8 @@ def test_lone_bingham_row_slides_to_rest_on_the_floor(comm, mpi_tmp_path):
         first, last = frames[0][1], frames[-1][1]
         fl0, fl = first["phase"] == 1, last["phase"] == 1
         slide = last["x"][fl, 0].max() - first["x"][fl0, 0].max()
-        assert 0.6 * coulomb < slide < 1.05 * coulomb
+        record("lone_row", {"slide_m": slide, "coulomb_m": coulomb}, ranks=comm.size)
+        assert 0.62 * coulomb < slide < 1.05 * coulomb
         assert np.abs(last["v"][fl, 0]).max() < 0.02  # stopped (it sits with a mm bounce)
 
 
@@ -138,12 +145,21 @@ def test_lone_bingham_row_sinks_into_the_floor_without_the_contact(comm, mpi_tmp
 @pytest.mark.parametrize("divisions", [10, 14])
 def test_dam_break_runs_and_does_not_leak(comm, mpi_tmp_path, divisions):
     """Two resolutions (a / 10, a / 14): stable to T = 3.5, nothing leaves the tank
-    (the corner at the foot of the left wall and the impact on the right wall)."""
+    (the corner at the foot of the left wall and the impact on the right wall), and the
+    mean front error against both experiments (T > 0.5) within 12 % (measured 9.7 % at
+    a / 10 and 6.8 % at a / 14: simulations of this experiment run ahead of it, gate
+    release and bed friction are not modelled)."""
     a = 0.146
     d = round(a / divisions, 6)
-    _, out = _run(comm, mpi_tmp_path, "dam_break",
-                  [f"domain.particle_size={d}", "run.end_time=0.3", "output.every=0.02"])
+    scene, out = _run(comm, mpi_tmp_path, "dam_break",
+                      [f"domain.particle_size={d}", "run.end_time=0.3", "output.every=0.02"])
     if comm.rank == 0:
+        from parsph.verify.fluid import dam_break
+
+        error = dam_break(scene, out)
+        record(f"dam_break_a{divisions}", {"mean_front_error_pc": 100 * error},
+               ranks=comm.size)
+        assert error < 0.12
         for _, f in _frames(out):
             assert _inside_tank(f, (0.0, 0.0), (4 * a, 0.35), 0.5 * d)
         T, Z = front_positions(out, a, d)

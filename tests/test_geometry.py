@@ -1,13 +1,12 @@
 """Particle generation from shapes: counts, layers, ids independent of the rank count."""
 import numpy as np
 import pytest
-from mpi4py import MPI
 
 from decomposition.reduce import global_sum
 from parsph.scene.geometry import estimate_count, generate, wall_layers
 from parsph.scene.materials import PHASE_WALL
 from parsph.scene.loader import load_scene
-from tests.scenes import MOVING_2D, MOVING_3D, gather_particles, write
+from tests.scenes import MOVING_2D, MOVING_3D, alone_on_rank_zero, gather_particles, write
 
 
 def test_tank_layers_and_counts(comm, tmp_path):
@@ -87,14 +86,12 @@ def test_ids_independent_of_rank_count(comm, tmp_path):
     path = write(tmp_path, MOVING_2D) if comm.rank == 0 else None
     path = comm.bcast(path)
     scn = load_scene(path)
-    one = comm.Split(0 if comm.rank == 0 else MPI.UNDEFINED, comm.rank)
-    serial = gather_particles(one, generate(one, scn)) if comm.rank == 0 else None
+    serial = alone_on_rank_zero(comm, lambda one: gather_particles(one, generate(one, scn)))
     parallel = gather_particles(comm, generate(comm, scn))
     assert global_sum(comm, 1) == comm.size
     if comm.rank == 0:
         assert np.array_equal(serial[0], parallel[0])
         assert np.array_equal(serial[1], parallel[1])
-        one.Free()
 
 
 @pytest.mark.parametrize("name", ["hydrostatic", "dam_break", "bingham_slump", "slope_failure",

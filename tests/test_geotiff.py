@@ -4,14 +4,13 @@ import pathlib
 import numpy as np
 import pytest
 import tifffile
-from mpi4py import MPI
 
 from parsph.errors import SceneError
 from parsph.scene.geometry import generate
 from parsph.scene.heightmap import read_grid
 from parsph.scene.materials import PHASE_WALL
 from parsph.scene.loader import load_scene
-from tests.scenes import MOVING_3D, gather_particles, write
+from tests.scenes import MOVING_3D, alone_on_rank_zero, gather_particles, write
 
 #: GeoKeyDirectory entries (key, location 0, count 1, value) of GeoTIFF 1.1.
 MODEL, RASTER, GEOGRAPHIC, PROJECTED, LINEAR = 1024, 1025, 2048, 3072, 3076
@@ -88,13 +87,11 @@ def test_geotiff_particles_independent_of_rank_count(comm, mpi_tmp_path):
     comm.Barrier()
     scn = load_scene(write(tmp, _scene_text("dem.tif"))) if comm.rank == 0 else None
     scn = comm.bcast(scn)
-    one = comm.Split(0 if comm.rank == 0 else MPI.UNDEFINED, comm.rank)
-    serial = gather_particles(one, generate(one, scn)) if comm.rank == 0 else None
+    serial = alone_on_rank_zero(comm, lambda one: gather_particles(one, generate(one, scn)))
     parallel = gather_particles(comm, generate(comm, scn))
     if comm.rank == 0:
         assert np.array_equal(serial[0], parallel[0])
         assert np.array_equal(serial[1], parallel[1])
-        one.Free()
 
 
 BAD = [

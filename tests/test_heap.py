@@ -1,8 +1,8 @@
-"""The heap's free pages handed back to the system (parsph.core.heap)."""
+"""The heap's free pages handed back to the system (base.heap)."""
 import numpy as np
 import pytest
 
-from parsph.core import heap
+from base import heap
 
 
 def _rss() -> int:

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
+from jobs.figures import record
 from parsph.fluid import assembly, ppe, rheology, viscous
 from parsph.verify import fluid as references
 from parsph.verify.fluid import front_positions  # noqa: F401 (used by the stability tests)
@@ -489,6 +490,9 @@ def test_hydrostatic_pressure(comm, mpi_tmp_path):
                          ["domain.particle_size=0.025", "run.end_time=0.1", "output.every=0.1"])
     if comm.rank == 0:
         err = references.hydrostatic_error(last_frame(out), 1000.0, 9.81, 1.0)
+        record("hydrostatic_0.1s", {"max_error_pc": 100 * err.max(),
+                                    "rms_error_pc": 100 * np.sqrt(np.mean(err ** 2))},
+               ranks=comm.size)
         assert err.max() < 0.02
         assert np.sqrt(np.mean(err ** 2)) < 0.015
         assert references.hydrostatic(scene, out) == pytest.approx(np.sqrt(np.mean(err ** 2)))
@@ -502,10 +506,14 @@ def test_hydrostatic_at_rest_after_one_second(comm, mpi_tmp_path):
     if comm.rank == 0:
         f = last_frame(out)
         err = references.hydrostatic_error(f, 1000.0, 9.81, 1.0)
-        assert err.max() < 0.02 and np.sqrt(np.mean(err ** 2)) < 0.015
         fl = f["phase"] == 1
         v = f["v"][fl]
         scale = math.sqrt(9.81 * 1.0)  # sqrt(g H)
+        record("hydrostatic_1s", {
+            "max_error_pc": 100 * err.max(), "rms_error_pc": 100 * np.sqrt(np.mean(err ** 2)),
+            "rms_speed_pc": 100 * np.sqrt((v ** 2).sum(1).mean()) / scale}, ranks=comm.size)
+        # 2 % and 1.5 %: within twice what is measured (1.24 %, rms 0.86 %)
+        assert err.max() < 0.02 and np.sqrt(np.mean(err ** 2)) < 0.015
         assert np.sqrt((v ** 2).sum(1).mean()) < 0.003 * scale
         assert f["x"][fl, 1].max() < 1.0 + 0.025 and f["x"][fl, 1].min() > 0.0
 
@@ -539,9 +547,15 @@ def test_channel_profiles(comm, mpi_tmp_path, name):
     scene, out, _ = _run(comm, mpi_tmp_path, name, [f"run.end_time={end}", "output.every=2.0"])
     if comm.rank == 0:
         u, ex = references.channel_profile(last_frame(out), exact)
-        assert references.profile_l2(u, ex) < 0.02
-        assert references.channel(scene, out) == pytest.approx(references.profile_l2(u, ex))
-        assert u.max() == pytest.approx(ex.max(), rel=0.02)
+        l2 = references.profile_l2(u, ex)
+        record(name, {"l2_error_pc": 100 * l2, "peak_velocity": u.max(),
+                      "peak_error_pc": 100 * (u.max() / ex.max() - 1)}, ranks=comm.size)
+        # L2 within twice what was measured (Poiseuille 0.55 %, Bingham 1.76 %); the
+        # peak (the Bingham plug) within 0.8 %, twice Poiseuille's measured +0.39 % (the
+        # plug: +0.10 %)
+        assert l2 < (0.011 if name == "poiseuille" else 0.035)
+        assert references.channel(scene, out) == pytest.approx(l2)
+        assert u.max() == pytest.approx(ex.max(), rel=0.008)
         if name == "bingham_poiseuille":
             assert ex.max() == pytest.approx(0.015625)
 
@@ -568,6 +582,9 @@ def test_one_vs_two_ranks_agree_by_id(comm, mpi_tmp_path):
     one, two = run_on_one_and_two(comm, scene, mpi_tmp_path)
     if comm.rank == 0:
         a, b = last_frame(one), last_frame(two)
+        record("one_vs_two_iisph", {"max_dx_m": np.abs(a["x"] - b["x"]).max(),
+                                    "max_dp_pa": np.abs(a["p"] - b["p"]).max()},
+               ranks=comm.size)
         assert np.array_equal(a["id"], b["id"])
         assert set(np.unique(b["rank"])) == {0, 1}
         # both solves converge to rtol 1e-8: positions agree far below the spacing

@@ -163,11 +163,12 @@ def test_first_moment_of_gradient_is_minus_identity(dim, spacing):
     assert np.allclose(vol * grad.sum(axis=0), 0.0, atol=1e-12)
 
 
-@pytest.mark.parametrize("dim, tol", [(2, 1e-3), (3, 1e-3)])
+@pytest.mark.parametrize("dim, tol", [(2, 5e-4), (3, 1e-3)])
 def test_partition_of_unity_on_paper_lattice(dim, tol):
     """sum_j V_j W_ij on a regular lattice of spacing d with h = 1.2 d (paper, section 2).
 
-    Measured: 1 - 2.4e-4 (2D), 1 + 8.1e-4 (3D).
+    Measured: 1 - 2.4e-4 (2D; docs/verification.md states it, the test allows about twice
+    that), 1 + 8.1e-4 (3D).
     """
     d = 0.02
     h = K.smoothing_length(d)

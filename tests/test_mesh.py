@@ -6,14 +6,13 @@ import tomllib
 import numpy as np
 import pytest
 import trimesh
-from mpi4py import MPI
 
 from decomposition.reduce import global_sum
 from parsph.errors import SceneError
 from parsph.scene.geometry import estimate_count, generate
 from parsph.scene.materials import PHASE_WALL
 from parsph.scene.loader import load_scene
-from tests.scenes import hencky, scene_text, toml_text, write, write_shared
+from tests.scenes import alone_on_rank_zero, hencky, scene_text, toml_text, write, write_shared
 
 def _mesh(name, file, extra="", **keys):
     """A body or wall from the mesh ``file``; ``extra``: more of its keys, as TOML."""
@@ -210,15 +209,13 @@ def test_mesh_particles_independent_of_rank_count(comm, mpi_tmp_path):
                  walls=[("cube.stl", 'fill = "outside"\ntranslate = [0.0, 0.0, 0.0]'),
                         ("ball.stl", 'fill = "inside"\ntranslate = [0.0, 0.0, -0.4]\nlayers = 2')],
                  comm=comm)
-    one = comm.Split(0 if comm.rank == 0 else MPI.UNDEFINED, comm.rank)
-    serial = _gather(one, generate(one, scn)) if comm.rank == 0 else None
+    serial = alone_on_rank_zero(comm, lambda one: _gather(one, generate(one, scn)))
     local = generate(comm, scn)
     assert global_sum(comm, int(len(local["id"]) > 0)) == comm.size  # every rank filled some
     parallel = _gather(comm, local)
     if comm.rank == 0:
         for k in ("id", "x", "body"):
             assert np.array_equal(serial[k], parallel[k])
-        one.Free()
 
 
 BOULDER = scene_text(

@@ -59,6 +59,34 @@ def test_density_on_moving_set_one_vs_two_ranks(comm, mpi_tmp_path, text):
 
 
 @pytest.mark.mpi
+def test_a_failure_on_one_rank_only_fails_every_rank_at_once(comm, mpi_tmp_path, monkeypatch):
+    """``run_on_one_and_two``: rank 0's one-rank run stops on a NaN (a fault injected in
+    runs on one rank only), so rank 0 raises there while rank 1 has not run at all. Every
+    rank must raise the error, at once: before the ranks agreed on it, rank 1 went on into
+    the two-rank run and waited for rank 0 in its first collective for ever. The deadline
+    (faulthandler, 120 s against a few seconds of work) turns such a hang back into a
+    failure with every thread's stack instead of the suite's timeout."""
+    import faulthandler
+
+    from parsph.errors import NumericalError
+    from parsph.step import faults
+
+    def nan_on_one_rank(ctx):
+        if ctx.comm.size == 1 and ctx.step == 1:
+            ctx.particles["v"][0, 0] = float("nan")
+
+    scene = load_shared(comm, mpi_tmp_path, MOVING_2D)
+    monkeypatch.setattr(faults, "inject_nan", nan_on_one_rank)
+    faulthandler.dump_traceback_later(120, exit=True)
+    try:
+        with pytest.raises(NumericalError, match="non-finite v of particle id .* at step 1"):
+            run_on_one_and_two(comm, scene, mpi_tmp_path)
+    finally:
+        faulthandler.cancel_dump_traceback_later()
+    assert not os.path.exists(os.path.join(mpi_tmp_path, "two", "stats.csv"))  # never started
+
+
+@pytest.mark.mpi
 def test_rebalancing_follows_a_moving_body(comm, mpi_tmp_path):
     """All particles drift into one half of the domain: the partition follows them."""
     scene = load_shared(comm, mpi_tmp_path, MOVING_2D)

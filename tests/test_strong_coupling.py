@@ -9,10 +9,11 @@ import os
 import numpy as np
 import pytest
 
+from jobs.figures import record
 from parsph.step.run import _build
 from parsph.scene.loader import load_scene
-from tests.scenes import (G_2D, assert_energy_balance, dense_system, hencky, load_shared,
-                          scene_text, stats_rows, tank, water, water_around)
+from tests.scenes import (G_2D, assert_energy_balance, dense_system, energy_balance, hencky,
+                          load_shared, scene_text, stats_rows, tank, water, water_around)
 
 #: A water block with an elastic block inside it, no gravity, no walls: a state for one
 #: pressure step (velocities are set by the test).
@@ -310,10 +311,13 @@ def test_coupled_explicit_viscous_step_agrees_with_the_implicit_solve(comm, mpi_
 
 
 #: Tolerance of the gate's free-end displacement, mean |simulated - measured| over the
-#: measured points to 0.4 s (m). Published simulations of the same experiment differ from
-#: it by 3.6 mm (Antoci et al.'s own SPH, horizontal) to 10-11 mm (Yang et al.'s SPH-FEM);
-#: we ask for the latter's spread (docs/coupling.md, "elastic_gate").
-GATE_TOLERANCE = {"x": 0.011, "y": 0.011}
+#: measured points to 0.4 s (m), each no more than half the mean measured displacement on
+#: its axis, so that a gate that never moved on an axis fails by a factor of two (the mean
+#: measured |dx| is 34.1 mm, |dy| 10.8 mm). Horizontal: 11 mm, the spread of published
+#: simulations of the same experiment (Antoci et al.'s own SPH 3.6 mm, Yang et al.'s
+#: SPH-FEM 10-11 mm; docs/coupling.md, "elastic_gate"), 1.5x the 7.5 mm measured here.
+#: Vertical: 5.4 mm, half the vertical signal (10.8 mm), 1.3x the 4.2 mm measured here.
+GATE_TOLERANCE = {"x": 0.011, "y": 0.0054}
 
 
 @pytest.mark.slow
@@ -324,7 +328,7 @@ def test_elastic_gate_against_the_experiment(comm, mpi_tmp_path):
     simulations), the gate survives, and the energy balance (docs/energy.md) rises by at
     most 1e-4 of the peak kinetic energy in a step and over any stretch (measured: 4.8e-5
     and 5.0e-5)."""
-    from parsph.verify.coupling import free_end, gate_errors
+    from parsph.verify.coupling import free_end, gate_errors, measured_gate
     from parsph.step.run import run
 
     scene = load_scene("elastic_gate", ["output.progress=false"])
@@ -341,8 +345,15 @@ def test_elastic_gate_against_the_experiment(comm, mpi_tmp_path):
     assert 0.4 <= t[-1] <= 0.4 + late
     assert 0.03 < dx.max() < 0.06  # opened (the experiment: 46 mm at 0.16 s)
     ex, ey = gate_errors(out)
-    print(f"elastic_gate: mean |error| {ex * 1e3:.1f} mm (dx), {ey * 1e3:.1f} mm (dy), "
-          f"max dx {dx.max() * 1e3:.1f} mm")
+    rise, gain = energy_balance(rows)
+    record("elastic_gate", {"error_dx_mm": ex * 1e3, "error_dy_mm": ey * 1e3,
+                            "max_dx_mm": dx.max() * 1e3, "max_dy_mm": dy.max() * 1e3,
+                            "end_time_s": float(rows[-1]["time"]), "steps": len(rows),
+                            "particles": int(rows[-1]["n_particles"]),
+                            "energy_rise_max": rise, "energy_gain_max": gain},
+           ranks=comm.size)
+    for axis, tolerance in GATE_TOLERANCE.items():  # a gate at rest must fail (above)
+        assert tolerance <= 0.5 * np.abs(measured_gate(axis)[1]).mean(), axis
     assert ex < GATE_TOLERANCE["x"], f"horizontal: mean error {ex * 1e3:.1f} mm"
     assert ey < GATE_TOLERANCE["y"], f"vertical: mean error {ey * 1e3:.1f} mm"
     assert_energy_balance(rows, 1e-4, 1e-4, "elastic_gate")

@@ -22,14 +22,9 @@ from parsph.errors import SceneError
 from parsph.scene.heightmap import surface
 from parsph.core.kernel import H_OVER_D
 from parsph.scene.materials import PHASE_WALL
-from parsph.scene.loader import SIDES, Scene
+from parsph.scene.loader import SIDES, Scene, wall_layers
 
 _CHUNK = 1 << 22  # candidates handled at once per rank (bounds temporary memory)
-
-
-def wall_layers(scene: Scene, wall) -> int:
-    """Layers of wall particles: enough to cover the kernel support 2h = 2.4 d."""
-    return wall.layers or math.ceil(2.0 * H_OVER_D - 1e-9)
 
 
 def _points_in_polygon(px, py, verts) -> np.ndarray:

@@ -28,6 +28,15 @@ SIDES = {2: ("left", "right", "bottom", "top"),
          3: ("left", "right", "front", "back", "bottom", "top")}
 
 
+def wall_layers(scene, wall) -> int:
+    """Layers of wall particles: enough to cover the kernel support 2h = 2.4 d (here, not
+    in :mod:`parsph.scene.geometry`, which imports this module: a mesh's outside layers
+    are checked against the domain when the scene is loaded)."""
+    from parsph.core.kernel import H_OVER_D
+
+    return wall.layers or math.ceil(2.0 * H_OVER_D - 1e-9)
+
+
 @dataclass(frozen=True)
 class SceneInfo:
     name: str = spec(doc="scene name")
@@ -557,7 +566,6 @@ def _load_data(scn: Scene, source: str) -> dict:
 
 def _load_mesh(scn: Scene, key: str, item, base: str, source: str):
     """Read a mesh (rank 0), place it, and check that its particles fall in the domain."""
-    from parsph.scene.geometry import wall_layers
     from parsph.scene.mesh import read_mesh
 
     path = item.file if os.path.isabs(item.file) else os.path.join(base, item.file)

@@ -28,10 +28,10 @@ import math
 import os
 import time
 
+from base import heap
 from decomposition import collective, world
 from decomposition.box import Box
 from decomposition.reduce import global_any, global_sum
-from parsph.core import heap
 from parsph.core.context import Context
 from parsph.core.kernel import smoothing_length, support_radius
 from parsph.core.particles import ParticleSet

@@ -9,6 +9,7 @@ the live data, and the peak resident size is set by it when a large allocation c
 whole free page of the heap to the system (``madvise``); a later allocation that reuses
 such a page gets a fresh one from the kernel, which costs a page fault.
 
+It lives in :mod:`base` because both :mod:`solvers` and :mod:`parsph` call it.
 Callers: :mod:`solvers` around the making of a hypre matrix for a fresh AMG set-up, and
 :mod:`parsph.step.run` before a checkpoint. Measured on the 3D coupled tank of
 ``jobs/bench_memory.py`` (docs/performance.md): peak RSS per particle 2,023 -> 1,850 bytes
