@@ -228,9 +228,9 @@ def run_figures(out: str, direction=None) -> dict:
         fig[key] = int(np.count_nonzero(last["phase"] == phase))
         fig[f"{key}_start"] = int(np.count_nonzero(first["phase"] == phase))
     if direction is not None:
-        u = np.asarray(direction, dtype=float)
-        u /= np.linalg.norm(u)
-        fig["runout_99_m"] = float(np.percentile(last["x"][last["phase"] != 2] @ u, 99))
+        from parsph.verify.coupling import run_out_along
+
+        fig["runout_99_m"] = run_out_along(last, direction)
     return fig
 
 

@@ -53,6 +53,7 @@ def main(argv=None) -> int:
                       f"{q['band_width_m']:.3f} m, {summary['steps']} steps, {wall:.0f} s",
                       flush=True)
     if comm.rank == 0:
+        record_figures(rows, comm.size, " ".join(sys.argv[1:]))
         if args.json:
             with open(args.json, "w") as fh:
                 json.dump(rows, fh, indent=1)
@@ -60,6 +61,22 @@ def main(argv=None) -> int:
             figure(rows, args.png)
             print(f"wrote {args.png}")
     return 0
+
+
+def record_figures(rows, ranks, args="") -> None:
+    """The table as the figure record ``biaxial_localisation`` (docs/figures.md): per rule,
+    lists over the sizes, coarse to fine."""
+    sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    from jobs.figures import record
+
+    fig = {}
+    for mode in ("nonlocal", "local"):
+        mine = sorted((r for r in rows if r["mode"] == mode), key=lambda r: -r["d"])
+        fig[f"{mode}_d_m"] = [r["d"] for r in mine]
+        for key in ("peak_kpa", "post_peak_kpa", "band_width_m", "wall_s"):
+            fig[f"{mode}_{key}"] = [r[key] for r in mine]
+    record("biaxial_localisation", fig, ranks=ranks, source="jobs/localisation.py",
+           command=f"mpirun -n {ranks} .venv/bin/python jobs/localisation.py {args}".strip())
 
 
 def figure(rows, path) -> None:

@@ -97,7 +97,15 @@ def run_out(scene, frame) -> float:
     if not direction.size:
         raise ParsphError(f"scene '{scene.name}' declares no output.front_direction: no "
                           "run-out to measure")
-    direction /= np.linalg.norm(direction)
+    return run_out_along(frame, direction)
+
+
+def run_out_along(frame, direction) -> float:
+    """Distance (m) along ``direction`` (any length) that :data:`RUNOUT_FRACTION` of the
+    mass of a frame's non-wall particles stays behind, from the origin: the position of
+    the particle at which the cumulative mass, in order along ``direction``, reaches
+    that fraction (equal masses where the frame has none)."""
+    direction = np.asarray(direction, float) / np.linalg.norm(direction)
     moving = frame["phase"] != 2
     along = frame["x"][moving] @ direction
     mass = frame["m"][moving] if "m" in frame else np.ones(len(along))
