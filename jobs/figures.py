@@ -234,6 +234,15 @@ def run_figures(out: str, direction=None) -> dict:
     return fig
 
 
+def _run_source(path: str) -> str:
+    """``source`` of a run directory's record: its path inside the repository, else only
+    its name (a path outside says nothing to another reader; ``command`` remakes it)."""
+    full = os.path.abspath(path)
+    if os.path.commonpath([full, ROOT]) == ROOT:
+        return f"parsph run directory {os.path.relpath(full, ROOT)}"
+    return f"parsph run directory .../{os.path.basename(full.rstrip(os.sep))}"
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python jobs/figures.py",
                                  description=__doc__.split("\n\n")[0])
@@ -263,7 +272,7 @@ def main(argv=None) -> int:
         sys.path.insert(0, ROOT)
         direction = [float(v) for v in args.direction.split(",")] if args.direction else None
         rec = record(args.name, run_figures(args.dir, direction), ranks=args.ranks,
-                     command=args.command, source=f"parsph run directory {args.dir}")
+                     command=args.command, source=_run_source(args.dir))
         write(rec, os.environ.get("PARSPH_FIGURES", FIGURES))
     if args.verb == "set":
         pairs = {}
