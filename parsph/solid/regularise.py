@@ -58,7 +58,7 @@ import numpy as np
 from numba import njit
 
 from decomposition.numbering import global_offset
-from decomposition.reduce import global_max
+from decomposition.reduce import global_any, global_max
 from parsph.core.tensor import eigh3, inv3_into
 
 @njit(cache=True, error_model="numpy")
@@ -358,7 +358,8 @@ class WindowTrigger:
     fit's gain, v_max the solid's largest speed, a factor 2 for the logarithm), so a row
     at ``value`` evaluated at ``t_e`` cannot pass ``limit`` before
     ``t_e + (limit - value) / rate``. The trigger then fires at the step it would with an
-    evaluation every step. Per-row state (solid fields, so views, migration and
+    evaluation every step, and the window's positions cross the ranks only on a step
+    where some rank has a row due. Per-row state (solid fields, so views, migration and
     checkpoints carry it): ``eps_trigger`` (the value at the row's last evaluation),
     ``trigger_time``, ``trigger_rate``.
 
@@ -382,7 +383,6 @@ class WindowTrigger:
         self.factor_of = np.asarray(factor_of, float)
         self.R = float(self.radius_of.max()) if len(self.radius_of) else 0.0
         self.halo = None
-        self.evaluated = 0  # rows evaluated in the last call (all ranks' sum not kept)
 
     def build(self, vctx, sel) -> None:
         """Collective: the window's halo (the solid rows within R of this rank's, in X) and
@@ -410,8 +410,8 @@ class WindowTrigger:
         rate_now = rate * vmax
         due = cand & ((rate_now == 0.0) | (value + rate_now * (t - t_e) >= limit))
         rows = np.flatnonzero(due)
-        moved = self.halo.exchange({"x": p["x"][:n]}, shift_fields=("x",))["x"]
-        self.evaluated = len(rows)
+        if global_any(vctx.comm, len(rows) > 0):  # the window's positions: collective
+            moved = self.halo.exchange({"x": p["x"][:n]}, shift_fields=("x",))["x"]
         if len(rows):
             from parsph.core.cross import build_cross_csr
 
