@@ -20,6 +20,13 @@ def global_sum(comm, value):
 
 
 def global_max(comm, value):
+    """Maximum of a number, or element-wise of a numpy float array, over all ranks."""
+    if isinstance(value, np.ndarray):
+        if comm.size == 1:
+            return value.copy()
+        out = np.empty_like(value)
+        comm.Allreduce(np.ascontiguousarray(value), out, op=MPI.MAX)
+        return out
     return value if comm.size == 1 else comm.allreduce(value, op=MPI.MAX)
 
 

@@ -12,6 +12,7 @@ from parsph.scene.geometry import generate
 from parsph.core.kernel import smoothing_length, support_radius
 from parsph.scene.materials import PHASE_FLUID, PHASE_SOLID, PHASE_WALL
 from parsph.scene.params_probes import fields_of
+from parsph.scene.params_solid import geostatic_procedure
 from parsph.step.pipeline import INFRASTRUCTURE, plan
 from parsph.scene.loader import geometry_warnings
 
@@ -39,7 +40,10 @@ def check(comm, scene) -> str:
         f"  {scene.domain.dim}D, particle size d = {d:g} m, h = 1.2 d = {h:g} m, "
         f"support 2h = {support_radius(h):g} m",
         f"  mode {scene.run.mode}, end time {scene.run.end_time:g} s, "
-        f"frames every {scene.output.every:g} s",
+        f"frames every {scene.output.every:g} s"
+        + (f", or at rest (kinetic energy below {scene.run.rest_fraction:g} of its peak for "
+           f"{scene.run.rest_time:g} s)" if scene.run.rest_fraction > 0 else ""),
+        f"  start: geostatic stage '{geostatic_procedure(scene)}' (docs/geostatic.md)",
         "stages of one step:",
     ]
     rows = [(n, doc) for n, doc in INFRASTRUCTURE] + [(s.name, s.doc) for s in specs]

@@ -60,7 +60,8 @@ MAIN_ONLY = ("nu", "v_star", "v_ghost", "free_surface", "wall_slip", "fluid_row"
 #: migrate) 375 of a 3D row's 613 bytes, which had been 40 % of the 2-rank halo
 #: exchange's time (docs/performance.md).
 HALO_SKIP = VIEW_STATE + ("X", "eps_p", "p_c", "porosity", "modulus", "ref_count0",
-                          "solid_init", "fluidised", "ppe_band") + NONLOCAL_STATE \
+                          "solid_init", "fluidised", "ppe_band", "eps_p_geostatic",
+                          "x_settled") + NONLOCAL_STATE \
     + ("eps_trigger", "trigger_time", "trigger_rate")
 
 #: stats.csv columns of the coupling; ``fsi_force_*`` (N, N/m in 2D) is the net force of
@@ -77,10 +78,13 @@ class Coupled:
 
     def __init__(self, ctx):
         from parsph.fluid.stage import IISPH, lattice_density_ratio
+        from parsph.solid import geostatic
         from parsph.solid.stage import TLSPH
 
         self.solid = TLSPH(ctx)  # adds the solid fields to the main set
         self.window = self._window(ctx)
+        if "x_settled" in geostatic.fields(ctx.scene, self.window is not None):
+            ctx.particles.add_field("x_settled", (ctx.dim,))  # the windowed trigger's start
         self.solid_state = SOLID_STATE + tuple(k for k in NONLOCAL_STATE if k in ctx.particles) \
             + (self.window.FIELDS if self.window is not None else ())
         for name in VIEW_FIELDS:  # but these live in the solid's view only
@@ -321,8 +325,8 @@ class Coupled:
         window strain of the regularised soils (:class:`parsph.solid.regularise.
         WindowTrigger`), the accumulated plastic strain of the others (section 3.3)."""
         p, n = ctx.particles, ctx.n_owned
-        if self.window is None:
-            return p["eps_p"][:n]
+        if self.window is None:  # less the geostatic stage's (docs/geostatic.md)
+            return p["eps_p"][:n] - (p["eps_p_geostatic"][:n] if "eps_p_geostatic" in p else 0.0)
         view = self.view
         value = np.zeros(view.n)
         vmax = global_max(ctx.comm, max_speed(view.ctx.particles["v"], view.n))
@@ -357,6 +361,13 @@ class Coupled:
                 flag = self._orphans()
                 count = global_sum(ctx.comm, len(flag))
         self._count(ctx)
+
+    def settle(self, ctx) -> dict | None:
+        """A fresh run's geostatic stage on the solid view (:mod:`parsph.solid.geostatic`;
+        the fluid is held)."""
+        from parsph.solid.geostatic import settle
+
+        return settle(ctx, self.solid, self.view.ctx, self)
 
     def stats(self) -> dict:
         ctx_stats = dict(self._stats)

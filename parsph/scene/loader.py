@@ -21,7 +21,7 @@ from parsph.errors import SceneError
 from parsph.scene.materials import build_material
 from parsph.scene.params_fluid import FluidNumerics
 from parsph.scene.params_probes import Probe, check_probes
-from parsph.scene.params_solid import Constraint, SolidNumerics, check_solid
+from parsph.scene.params_solid import Constraint, Geostatic, SolidNumerics, check_solid
 from parsph.scene.schema import spec
 
 SIDES = {2: ("left", "right", "bottom", "top"),
@@ -63,6 +63,12 @@ class Run:
     dt: float = spec(0.0, doc="fixed time step (s); 0 = CFL step, eq. (49)", ge=0.0)
     cfl: float = spec(0.1, doc="CFL coefficient for moving particles, eq. (49)", gt=0.0, le=1.0)
     max_steps: int = spec(0, doc="stop after this many steps (0 = no limit)", ge=0)
+    rest_fraction: float = spec(0.0, doc="stop before end_time once the kinetic energy has "
+                                "stayed below this share of its peak for rest_time, after "
+                                "the earthquake record's end (0 = never; docs/geostatic.md)",
+                                ge=0.0, lt=1.0)
+    rest_time: float = spec(2.0, doc="seconds the kinetic energy stays below rest_fraction of "
+                            "its peak before the run stops at rest", gt=0.0)
     rebalance_tolerance: float = spec(1.2, doc="re-partition when max/mean owned > this", ge=1.0)
     max_particles: int = spec(200_000_000, doc="refuse scenes with more particles", gt=0)
 
@@ -182,6 +188,7 @@ class Scene:
     gravity: Gravity = field(default_factory=Gravity)
     loading: Loading = field(default_factory=Loading)
     solid: SolidNumerics = field(default_factory=SolidNumerics)
+    geostatic: Geostatic = field(default_factory=Geostatic)
     fluid: FluidNumerics = field(default_factory=FluidNumerics)
     phase_change: PhaseChange = field(default_factory=PhaseChange)
     study: Study = field(default_factory=Study)

@@ -1,4 +1,4 @@
-"""Scene tables of the TLSPH solid: ``[solid]`` numerics and ``[[constraints]]``.
+"""Scene tables of the TLSPH solid: ``[solid]`` numerics, ``[geostatic]`` and ``[[constraints]]``.
 
 Plain validated dataclasses (no physics imported): owned by the solid stage. See
 ``docs/tlsph.md`` for the choices behind the defaults.
@@ -38,6 +38,33 @@ class SolidNumerics:
                               "p', q, v, M) in stats.csv and DIR/triaxial.csv (docs/tlsph.md)")
 
 
+#: The geostatic stage's procedures (:mod:`parsph.solid.geostatic`, docs/geostatic.md).
+GEOSTATIC = ("auto", "none", "k0", "gravity", "k0_gravity")
+
+
+@dataclass(frozen=True, kw_only=True)
+class Geostatic:
+    """``[geostatic]``: the soil's initial stress before the run (docs/geostatic.md)."""
+
+    procedure: str = spec("auto", doc="k0 (a K0 stress field from the overburden) | gravity "
+                          "(gravity loading with local damping until equilibrium, from no "
+                          "stress) | k0_gravity (the K0 field, then that loading) | none (no "
+                          "stress, gravity acts from t = 0) | auto: k0_gravity in a scene "
+                          "with an earthquake record, none otherwise", choices=GEOSTATIC)
+    k0: float = spec(0.0, doc="sigma_h / sigma_v of the K0 field; 0 = each soil's own: "
+                     "1 - sin(phi) (Jaky) for Drucker-Prager, nu / (1 - nu) for Hencky", ge=0.0)
+    damping: float = spec(0.8, doc="local damping coefficient alpha of the gravity loading "
+                          "(a force -alpha |f| sign(v) against each particle's unbalanced "
+                          "force f, Cundall's; FLAC's default 0.8)", gt=0.0, lt=1.0)
+    tolerance: float = spec(1e-3, doc="equilibrium: the mean unbalanced force below this share "
+                            "of the weight and the kinetic energy below this share of its "
+                            "peak in the stage", gt=0.0, lt=1.0)
+    max_steps: int = spec(200_000, doc="the gravity loading stops the run with an error after "
+                          "this many steps without equilibrium", ge=1)
+    count_plastic_strain: bool = spec(False, doc="the plastic strain (and the deformation) of "
+                                      "the stage count toward the phase change")
+
+
 @dataclass(frozen=True, kw_only=True)
 class Constraint:
     """``[[constraints]]``: Dirichlet conditions and initial velocities of solid particles.
@@ -74,6 +101,7 @@ def check_solid(scene, source: str) -> None:
         Naming the key, for vectors of the wrong length or empty selection boxes.
     """
     dim = scene.domain.dim
+    _check_geostatic(scene, source)
     names = set()
     for i, c in enumerate(scene.constraints):
         key = f"constraints[{i}]"
@@ -93,3 +121,29 @@ def check_solid(scene, source: str) -> None:
         if c.kind == "initial" and c.profile == "uniform" and len(c.velocity) != dim:
             raise SceneError(f"{source}: key '{key}.velocity': a uniform initial profile needs "
                              f"{dim} numbers")
+
+
+def geostatic_procedure(scene) -> str:
+    """The scene's ``geostatic.procedure`` with ``auto`` resolved: ``k0_gravity`` where an
+    earthquake record loads a solid (the quake must start from equilibrium), ``none``
+    otherwise (the gravity loading is the experiment, as in the paper's section 6.2)."""
+    chosen = scene.geostatic.procedure
+    if chosen != "auto":
+        return chosen
+    solid = any("tlsph" in m.stages for m in scene.materials.values())
+    return "k0_gravity" if solid and scene.loading.record and scene.run.mode == "physics" \
+        else "none"
+
+
+def _check_geostatic(scene, source: str) -> None:
+    """``[geostatic]`` needs a solid to act on, and its K0 field a vertical gravity."""
+    geo = scene.geostatic
+    if geo.procedure in ("auto", "none"):
+        return
+    if not any("tlsph" in m.stages for m in scene.materials.values()):
+        raise SceneError(f"{source}: key 'geostatic.procedure': '{geo.procedure}' needs a solid "
+                         f"(TLSPH) material; this scene has none (set it to \"none\")")
+    g = scene.gravity.g
+    if "k0" in geo.procedure and sum(1 for c in g if c != 0.0) != 1:
+        raise SceneError(f"{source}: key 'geostatic.procedure': a K0 field needs gravity along "
+                         f"one axis (gravity.g = {list(g)}); use procedure = \"gravity\"")

@@ -5,14 +5,14 @@ from parsph.scene import schema
 from parsph.scene.materials import MODELS
 from parsph.scene.params_fluid import FluidNumerics
 from parsph.scene.params_probes import Probe
-from parsph.scene.params_solid import Constraint, SolidNumerics
+from parsph.scene.params_solid import Constraint, Geostatic, SolidNumerics
 from parsph.scene.loader import (Body, Domain, Gravity, Loading, Output, PhaseChange, Run, SceneInfo,
                           Study, Wall)
 
 SECTIONS = (("[scene]", SceneInfo, "scene."), ("[domain]", Domain, "domain."),
             ("[run]", Run, "run."), ("[output]", Output, "output."), ("[study]", Study, "study."),
             ("[gravity]", Gravity, "gravity."), ("[loading]", Loading, "loading."),
-            ("[solid]", SolidNumerics, "solid."),
+            ("[solid]", SolidNumerics, "solid."), ("[geostatic]", Geostatic, "geostatic."),
             ("[fluid]", FluidNumerics, "fluid."),
             ("[phase_change]", PhaseChange, "phase_change."), ("[[bodies]]", Body, "bodies.N."),
             ("[[walls]]", Wall, "walls.N."), ("[[constraints]]", Constraint, "constraints.N."),

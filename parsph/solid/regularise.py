@@ -391,9 +391,12 @@ class WindowTrigger:
 
         p, n = vctx.particles, vctx.particles.n_owned
         self.halo = Halo.build(vctx.comm, vctx.rcb, p["X"][:n], self.R, vctx.box)
-        fixed = self.halo.exchange({"X": p["X"][:n], "sel": sel[:n].astype(np.uint8)},
+        # the deformation counts from the settled state after a geostatic stage
+        # (parsph.solid.geostatic), else from the reference configuration
+        ref = p["x_settled"] if "x_settled" in p else p["X"]
+        fixed = self.halo.exchange({"X": ref[:n], "sel": sel[:n].astype(np.uint8)},
                                    shift_fields=("X",))
-        self.X = np.ascontiguousarray(np.concatenate([p["X"][:n], fixed["X"]]))
+        self.X = np.ascontiguousarray(np.concatenate([ref[:n], fixed["X"]]))
         self.sel = np.concatenate([sel[:n], fixed["sel"].astype(bool)])
 
     def strain(self, vctx, limit, t, vmax, out) -> None:
@@ -405,6 +408,8 @@ class WindowTrigger:
         material = np.maximum(p["material"][:n], 0)
         R_row = self.radius_of[material]
         eps = p["eps_p"][:n]
+        if "eps_p_geostatic" in p:  # the geostatic stage's does not count
+            eps = eps - p["eps_p_geostatic"][:n]
         value, t_e, rate = (p[k][:n] for k in self.FIELDS)
         cand = self.sel[:n] & (R_row > 0.0) & (eps > self.CANDIDATE * limit)
         rate_now = rate * vmax

@@ -28,7 +28,7 @@ from decomposition import raise_if_any
 from decomposition.reduce import global_any, global_max, global_sum
 from parsph.errors import NumericalError
 from parsph.scene.materials import PHASE_SOLID
-from parsph.solid import kernels
+from parsph.solid import geostatic, kernels
 from parsph.core.contact import NO_MASS, contact_points_moved, solid_wall_set, wall_contact
 from parsph.core.energy import step_work
 from parsph.core.particles import max_speed
@@ -60,6 +60,8 @@ class TLSPH:
         for name in ("p_c", "rho0", "modulus"):
             p.add_field(name)
         p.add_field("solid_init", (), np.uint8)
+        if geostatic.fields(ctx.scene, False):  # the stage's plastic strain, reported
+            p.add_field("eps_p_geostatic")
         self.num = ctx.scene.solid
         # the internal length of the soils that soften or change phase: softening (over-
         # non-local factor m) and trigger see the non-local strain (parsph.solid.regularise)
@@ -71,6 +73,8 @@ class TLSPH:
         self.output_fields = ()
         if any(m_nl):  # the softening soils' average (the trigger has its own window)
             self._init_nonlocal(ctx, [m > 0.0 for m in m_nl])
+        if "eps_p_geostatic" in p:
+            self.output_fields += ("eps_p_geostatic",)
         self.rho0_of = np.ascontiguousarray(self.tab[:, C["rho0"]])
         self.has_cam_clay = bool(np.any(self.tab[:, C["model"]] == CAM_CLAY))
         self.has_walls = bool(ctx.scene.walls)
@@ -202,12 +206,14 @@ class TLSPH:
         self.predict(ctx, dt)
         self.finish_step(ctx, dt)
 
-    def predict(self, ctx, dt: float, extra=None, cp=None) -> None:
+    def predict(self, ctx, dt: float, extra=None, cp=None, body=None) -> None:
         r"""Steps 1-3: :math:`\mathbf v^{\beta+1}` of eq. (7) (stress, JST, body force, and
         ``extra``, an acceleration of the owned rows (n_owned, dim) if given), Dirichlet
         constraints and wall contact. A coupled step (section 5) corrects the type-II rows'
         velocity between :meth:`predict` and :meth:`finish_step`. ``cp``: the wave speed
-        of the JST term (m/s; default: computed now, a collective)."""
+        of the JST term (m/s; default: computed now, a collective); ``body``: the body
+        acceleration (default gravity and the record, :meth:`Context.body_acceleration`;
+        the geostatic stage gives gravity alone)."""
         p, n, dim = ctx.particles, ctx.particles.n_owned, ctx.dim
         X, sel, fp = self.X3, self.sel, self.fp
         args = (n, ctx.indptr, ctx.indices)
@@ -239,7 +245,8 @@ class TLSPH:
                 lap4 = np.zeros((n, 3))
                 kernels.laplacian_stored(lap, x3, coef, *args, lap4)
             coef = None
-        g = np.asarray(ctx.body_acceleration(ctx.time), dtype=float)[:dim]
+        g = np.asarray(ctx.body_acceleration(ctx.time) if body is None else body,
+                       dtype=float)[:dim]
         self._v0, self._b, self._impulse, self._ahg = p["v"][:n].copy(), g, None, ahg
         kernels.kick(p["v"], acc, lap, lap4, g, none if extra is None else extra, sel, n, dt,
                      cp * ctx.d, eps2, ctx.d ** 2 * eps4, dim)
@@ -424,6 +431,10 @@ class TLSPH:
             from parsph.solid.triaxial import write_from_stats
 
             write_from_stats(ctx.out)
+
+    def settle(self, ctx) -> dict | None:
+        """A fresh run's geostatic stage ([geostatic], :func:`geostatic.settle`)."""
+        return geostatic.settle(ctx, self, ctx)
 
     def stats(self) -> dict:
         return {k: self._stats.get(k, 0.0) for k in self.stats_columns}

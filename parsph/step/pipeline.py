@@ -14,6 +14,8 @@ Stage protocol (duck-typed)::
         def max_dt(self, ctx) -> float # this stage's time-step limit (inf if none)
         def step(self, ctx, dt): ...   # advance / compute on ctx.particles[:n_owned]
         def stats(self) -> dict        # extra stats.csv columns of the last step
+        def settle(self, ctx) -> dict  # optional: a fresh run's geostatic stage, before
+                                       # t = 0 (parsph.solid.geostatic); None if none
 """
 from __future__ import annotations
 

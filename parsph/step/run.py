@@ -98,6 +98,35 @@ def same_directory(restart: str, out: str) -> bool:
     return os.path.realpath(here) == os.path.realpath(out)
 
 
+class _Rest:
+    """``run.rest_fraction``: the run is at rest once its kinetic energy has stayed below
+    that share of its peak for ``run.rest_time`` seconds, counted from the end of the
+    earthquake record (the shaking must be over); the state goes into checkpoints, so a
+    restarted run stops where the uninterrupted one does."""
+
+    def __init__(self, scene, meta):
+        self.fraction, self.duration = scene.run.rest_fraction, scene.run.rest_time
+        record = scene.data.get("record")
+        self.after = scene.loading.start_time + float(record.t[-1]) if record is not None \
+            else 0.0
+        since = float(meta.get("rest_since", math.nan))
+        self.since = None if math.isnan(since) else since
+
+    def update(self, t: float, ke: float, peak: float) -> None:
+        if self.fraction <= 0.0:
+            return
+        if t >= self.after and peak > 0.0 and ke <= self.fraction * peak:
+            self.since = t if self.since is None else self.since
+        else:
+            self.since = None
+
+    def reached(self, t: float) -> bool:
+        return self.since is not None and t - self.since >= self.duration - 1e-12
+
+    def state(self) -> dict:
+        return {"rest_since": math.nan if self.since is None else self.since}
+
+
 class _StopRequest:
     """SIGTERM / SIGUSR1 (what batch systems send before killing a job) set a flag; the
     ranks agree on it after each step, write a checkpoint and stop together."""
@@ -237,6 +266,16 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
                   f"t = {ctx.time:.6g} s, step {ctx.step}")
     log.info("scene '%s': %d particles on %d rank(s), stages: %s%s", scene.name, n_total,
              comm.size, ", ".join(s.name for s in specs), origin)
+    settled = None
+    if ck is None and scene.run.mode == "physics":  # the soil in equilibrium before t = 0
+        for s in stages:
+            if hasattr(s, "settle"):
+                settled = settled or s.settle(ctx)
+        if settled is not None:
+            refresh(ctx)
+            for s in stages:
+                if hasattr(s, "after_refresh"):
+                    timed(ctx, s.name, s.after_refresh, ctx)
     h5 = os.path.join(out, "particles.h5")
     xdmf = os.path.join(out, "particles.xdmf")
     ck_path = os.path.join(out, checkpoint.FILE_NAME)
@@ -264,7 +303,8 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
                 "scene_physics_keys": checkpoint.physics_keys(scene),
                 "dim": dim, "time": ctx.time, "step": ctx.step, "next_frame": next_frame,
                 "last_frame_step": last_frame_step, "next_checkpoint": next_ck,
-                "elastic_energy": last["ee"], "ambient_energy": last["amb"], **balance.state()}
+                "elastic_energy": last["ee"], "ambient_energy": last["amb"], **balance.state(),
+                **rest.state()}
         states = {s.name: s.state() for s in stages if hasattr(s, "state")}
         heap.release_free_pages(ctx.n_owned)  # (a run's last checkpoint had been its peak)
         checkpoint.write(ck_path, comm, particles, ctx.rcb, meta, states,
@@ -272,7 +312,7 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
                          rcb_wall=ctx.rcb_wall, more=ctx.fields_one_at_a_time())
 
     def finished():
-        return ctx.time >= end - 1e-12 * end and ctx.at_sync_step
+        return (ctx.time >= end - 1e-12 * end or rest.reached(ctx.time)) and ctx.at_sync_step
 
     show = scene.output.progress if progress is None else progress
     bar = Progress(end, enabled=show and comm.rank == 0)
@@ -292,9 +332,12 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
         # the energy balance (stats.csv mechanical_energy, docs/energy.md) starts from the
         # initial state (a fresh solid is unstrained: no stored energy) or the checkpoint's
         meta = ck.meta if ck is not None else {}
+        if settled is not None:  # the stress of the geostatic stage stores energy
+            meta = {"elastic_energy": settled["elastic_energy"]}
         last = {"ee": float(meta.get("elastic_energy", 0.0)),
                 "amb": float(meta.get("ambient_energy", 0.0))}
         balance = EnergyBalance(kinetic_energy(ctx)[0], last["ee"] + last["amb"], meta)
+        rest = _Rest(scene, meta)
         max_steps = scene.run.max_steps
         stopping = False
         while scene.run.mode != "geometry" and not finished():
@@ -329,6 +372,7 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
             last.update(ee=float(row.get("elastic_energy") or 0.0),
                         amb=float(row.get("ambient_energy") or 0.0))
             balance.update(row, last["ee"] + last["amb"])
+            rest.update(ctx.time, row["kinetic_energy"], balance.ke_peak)
             row["elapsed_s"] = time.perf_counter() - wall0
             stats.write(row)
             bar.update(ctx.time, ctx.step)
@@ -344,6 +388,9 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
                 bar.close()
                 raise Preempted(f"stopped by a signal at step {ctx.step}, t = {ctx.time:.6g} s; "
                                 f"continue with: parsph run {scene.source} --restart {ck_path}")
+        if rest.reached(ctx.time) and comm.rank == 0:
+            log.info("at rest: the kinetic energy has stayed below %g of its peak since t = %.6g s",
+                     rest.fraction, rest.since)
         if ctx.step != last_frame_step:
             write_frame()
             last_frame_step = ctx.step
