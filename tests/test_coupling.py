@@ -674,12 +674,13 @@ def test_granular_collapse_scene(comm, mpi_tmp_path):
 @pytest.mark.slow
 @pytest.mark.mpi(min_size=2)
 def test_aso_like_scene(comm, mpi_tmp_path):
-    """The built-in ``aso_like`` as it is (2 ranks, to 12 s under its record; the
-    README's figures): its 16,968 soil particles (the lattice of the layers: exact), some
-    fluidise under the strong shaking and none before 5 s (with the internal length the
-    slip must build up over the trigger's window of 2 l = 32 m: the first at 6.0 s, 207
-    by 12 s on 1 rank), within +-30 % of that (three rounds of the local rule whose solves
-    differed within their tolerances spread 69-74, docs/aso_like.md), and the energy
+    """The built-in ``aso_like`` as it is (2 ranks, to 12 s under its record, from the
+    geostatic stage its record calls for, docs/geostatic.md; the README's figures): its
+    16,968 soil particles (the lattice of the layers: exact), some fluidise under the
+    strong shaking and none before 5 s (with the internal length the slip must build up
+    over the trigger's window of 2 l = 32 m: the first at 5.95 s, 387 by 12 s on 2 ranks;
+    stress-free it had been 209), within +-30 % of that (three rounds of the local rule
+    whose solves differed within their tolerances spread 69-74, docs/aso_like.md), and the energy
     balance (docs/energy.md) rises by at most 1e-4 of the peak kinetic energy in a step
     and 1e-3 over any stretch (1 rank: 3.9e-5 and 1.2e-4)."""
     scene = load_scene("aso_like", ["output.progress=false"])
@@ -690,7 +691,7 @@ def test_aso_like_scene(comm, mpi_tmp_path):
     figures = run_figures(out)
     record("aso_like", figures, ranks=comm.size)
     assert figures["solid_particles_start"] == 16968
-    assert 145 <= figures["n_fluidised"] <= 270
+    assert 270 <= figures["n_fluidised"] <= 500
     assert figures["first_fluidised_s"] > 5.0
     assert_energy_balance(stats_rows(out), 1e-4, 1e-3, "aso_like")
 
