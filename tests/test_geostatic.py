@@ -112,7 +112,7 @@ def test_level_layer_reaches_the_geostatic_stress(comm, mpi_tmp_path, procedure,
     assert summary["steps"] == 1
 
 
-def _slope(comm, tmp, procedure):
+def _slope(comm, tmp, procedure, more=()):
     text = None
     if comm.rank == 0:
         with open(builtin_path("slope_failure")) as fh:
@@ -120,7 +120,7 @@ def _slope(comm, tmp, procedure):
     # a stronger soil (c = 10 kPa): stable under gravity, softening and phase change on
     return load_shared(comm, tmp, text, [
         "materials.soil.cohesion=10.0e3", "run.end_time=0.5", "output.every=0.5",
-        "output.progress=false", f'geostatic.procedure="{procedure}"'], "slope.toml")
+        "output.progress=false", f'geostatic.procedure="{procedure}"', *more], "slope.toml")
 
 
 def test_stable_slope_stays_put_after_the_stage(comm, mpi_tmp_path):
@@ -248,3 +248,16 @@ def test_stage_on_one_and_two_ranks(comm, mpi_tmp_path):
         assert np.abs(x - y).max() < 1e-4 * RHO * G * H
     steps = [json.load(open(os.path.join(o, "geostatic.json")))["steps"] for o in (one, two)]
     assert steps[0] == steps[1]
+
+
+def test_stage_with_the_papers_local_trigger(comm, mpi_tmp_path):
+    """A coupled scene whose trigger is the paper's local rule (no window, so no settled
+    positions to keep): the stage runs and the slope stays put as with the window."""
+    scene = _slope(comm, mpi_tmp_path, "k0_gravity", ['materials.soil.regularisation="local"',
+                                                      "run.end_time=0.1"])
+    out = os.path.join(mpi_tmp_path, "local")
+    run(scene, out, comm=comm, progress=False)
+    if comm.rank == 0:
+        rows = stats_rows(out)
+        assert max(float(r["max_speed"]) for r in rows) < 2e-3
+        assert int(rows[-1]["n_fluidised"]) == 0

@@ -212,7 +212,8 @@ def settle(ctx, solid, sctx, coupled=None) -> dict | None:
     solid._impulse = None
     ctx.work[:] = 0.0
     if coupled is not None:
-        coupled.view.write_back(coupled.solid_state + tuple(fields(ctx.scene, True)))
+        coupled.view.write_back(coupled.solid_state
+                                + fields(ctx.scene, coupled.window is not None))
         if coupled.window is not None:
             coupled.window.build(sctx, solid.sel)
     _log(ctx, report)
