@@ -10,28 +10,28 @@ def global_sum(comm, value):
 
     Like the other reductions here it returns at once on one rank (a 2D step makes
     about thirty of them; each is an MPI call otherwise)."""
-    if isinstance(value, np.ndarray):
-        if comm.size == 1:
-            return value.copy()
-        out = np.empty_like(value)
-        comm.Allreduce(np.ascontiguousarray(value), out, op=MPI.SUM)
-        return out
-    return value if comm.size == 1 else comm.allreduce(value, op=MPI.SUM)
+    return _allreduce(comm, value, MPI.SUM)
 
 
 def global_max(comm, value):
-    """Maximum of a number, or element-wise of a numpy float array, over all ranks."""
+    """Maximum of a number, or element-wise of a numpy array, over all ranks."""
+    return _allreduce(comm, value, MPI.MAX)
+
+
+def _allreduce(comm, value, op):
+    """``op`` over all ranks of a number, or element-wise of a numpy array (a copy on one
+    rank)."""
     if isinstance(value, np.ndarray):
         if comm.size == 1:
             return value.copy()
         out = np.empty_like(value)
-        comm.Allreduce(np.ascontiguousarray(value), out, op=MPI.MAX)
+        comm.Allreduce(np.ascontiguousarray(value), out, op=op)
         return out
-    return value if comm.size == 1 else comm.allreduce(value, op=MPI.MAX)
+    return value if comm.size == 1 else comm.allreduce(value, op=op)
 
 
 def global_min(comm, value):
-    return value if comm.size == 1 else comm.allreduce(value, op=MPI.MIN)
+    return _allreduce(comm, value, MPI.MIN)
 
 
 def global_any(comm, flag: bool) -> bool:
