@@ -33,6 +33,7 @@ MODULE_SECONDS = {
     "test_tlsph": 14, "test_constitutive": 11, "test_kernel": 7, "test_decomposition": 5,
     "test_run": 4, "test_tutorial": 4, "test_neighbours": 3, "test_output_schedule": 2,
     "test_study": 2, "test_solvers": 2, "test_series": 2, "test_maps": 30, "test_regularisation": 25, "test_geostatic": 10,
+    "test_newmark": 100,
 }
 
 

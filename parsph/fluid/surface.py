@@ -19,7 +19,7 @@ import math
 
 import numpy as np
 
-from parsph.core.contact import NO_MASS, wall_contact
+from parsph.core.contact import INSTANT, NO_MASS, wall_contact
 
 
 def surface_contact(ctx, vnew, own_fluid, free, fluid, solid, strong, m, push_grad, rho0,
@@ -50,7 +50,7 @@ def surface_contact(ctx, vnew, own_fluid, free, fluid, solid, strong, m, push_gr
         moving = np.where((solid > 0)[:, None], p["v"], 0.0)
         contacts = wall_contact(p["x"], vnew, surface, surface, 1 - fluid, moving, indptr,
                                 indices, ctx.h, ctx.d, dim, mu, push,
-                                np.full(len(fluid), -1.0), math.inf, *masses)
+                                np.full(len(fluid), -1.0), math.inf, *masses, *INSTANT)
     if not strong:
         return contacts, None
     reaction = react[:n].copy()

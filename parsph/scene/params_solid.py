@@ -28,6 +28,9 @@ class SolidNumerics:
                                    "correction matrix (relative to a full interior support)",
                                    gt=0.0, le=1.0)
     wall_friction: float = spec(0.0, doc="Coulomb friction coefficient solid/wall (-)", ge=0.0)
+    friction_time: float = spec(0.01, doc="time (s) over which the wall friction's Coulomb "
+                                "bound follows a particle's normal contact force (Prakash & "
+                                "Clifton 1993); 0 = at once (docs/loading.md)", ge=0.0)
     max_substeps: int = spec(1, doc="coupled scenes with fluid: up to this many TLSPH sub-steps "
                              "per coupled step, which then takes the fluid's CFL step (eq. "
                              "(49)) instead of the solid's; 1 = one step for both (docs/coupling.md)",

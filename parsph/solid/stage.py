@@ -29,7 +29,8 @@ from decomposition.reduce import global_any, global_max, global_sum
 from parsph.errors import NumericalError
 from parsph.scene.materials import PHASE_SOLID
 from parsph.solid import geostatic, kernels
-from parsph.core.contact import NO_MASS, contact_points_moved, solid_wall_set, wall_contact
+from parsph.core.contact import INSTANT, NO_MASS, contact_points_moved, solid_wall_set, \
+    wall_contact
 from parsph.core.energy import step_work
 from parsph.core.particles import max_speed
 from parsph.solid.boundary import initial_velocity, velocity_masks
@@ -62,6 +63,8 @@ class TLSPH:
         p.add_field("solid_init", (), np.uint8)
         if geostatic.fields(ctx.scene, False):  # the stage's plastic strain, reported
             p.add_field("eps_p_geostatic")
+        # the lagged normal contact acceleration of the wall friction (m/s^2, _contact)
+        p.add_field("contact_a")
         self.num = ctx.scene.solid
         # the internal length of the soils that soften or change phase: softening (over-
         # non-local factor m) and trigger see the non-local strain (parsph.solid.regularise)
@@ -251,7 +254,7 @@ class TLSPH:
         kernels.kick(p["v"], acc, lap, lap4, g, none if extra is None else extra, sel, n, dt,
                      cp * ctx.d, eps2, ctx.d ** 2 * eps4, dim)
         self.constrain(ctx)
-        self._stats["solid_contacts"] = self._contact(ctx) if self.has_walls else 0
+        self._stats["solid_contacts"] = self._contact(ctx, dt) if self.has_walls else 0
 
     def constrain(self, ctx) -> None:
         """Dirichlet velocity constraints (``[[constraints]]``) on the owned rows; their
@@ -313,8 +316,15 @@ class TLSPH:
         if self.num.triaxial_csv:
             self._triaxial(ctx, dt)
 
-    def _contact(self, ctx) -> int:
+    def _contact(self, ctx, dt) -> int:
         """Collective: :func:`wall_contact` of the solids against the walls near them.
+
+        The Coulomb bound of the friction follows each particle's normal contact force
+        over ``solid.friction_time`` (field ``contact_a``; 0: at once), the regularisation
+        of :func:`wall_contact` (docs/loading.md). A run starts without that history: over
+        its first t* the bound is the running mean of the normal force since t = 0 (a
+        block launched along a rough floor at t = 0 had slid with too little friction for
+        t*, 0.05 m/s faster after 0.08 s at mu = 0.5).
 
         The lists of the walls near each solid are Verlet lists: built with a skin of
         :data:`CONTACT_SKIN` particle spacings (:meth:`_wall_lists`) and kept while no
@@ -330,12 +340,24 @@ class TLSPH:
             lists["kept"], lists["xall"])
         if global_any(ctx.comm, stale):
             lists = self._walls = self._wall_lists(ctx, solid)
+            # a solid out of the walls' reach has no contact force to remember
+            far = np.ones(n, dtype=bool)
+            far[lists["kept"]] = False
+            p["contact_a"][:n][far] = 0.0
         count = 0
+        tau = self.num.friction_time
+        lag = INSTANT
+        if tau > 0.0:
+            # exponential weights over t*; over a run's first t*, where the filter has no
+            # history yet, the running mean since t = 0 (at once in the first step)
+            fresh = max(-math.expm1(-dt / tau), dt / (ctx.time + dt))
+            lag = (p["contact_a"], 1.0 - fresh, dt)
         if len(lists["kept"]):
             count = wall_contact(lists["xall"], p["v"], lists["k"], lists["kept"],
                                  lists["wall"], lists["still"], lists["indptr"],
                                  lists["indices"], ctx.h, ctx.d, ctx.dim, lists["mu"],
-                                 lists["push"], lists["mu_w"], ctx.radius ** 2, *NO_MASS)
+                                 lists["push"], lists["mu_w"], ctx.radius ** 2, *NO_MASS,
+                                 *lag)
         return global_sum(ctx.comm, count)
 
     def _wall_lists(self, ctx, solid) -> dict:

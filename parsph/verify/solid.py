@@ -5,6 +5,9 @@ r"""Known answers of the solid scenes, for ``parsph study`` and the tests (docs/
   :data:`PLATE_CONTINUUM_FACTOR` times the thin-plate (Euler–Bernoulli) period.
 - ``triaxial_light``, ``triaxial_heavy``: distance of the end point of the drained path
   from the critical state line, :math:`|q - M p'| / (M p')`, from ``DIR/triaxial.csv``.
+- ``newmark_block``: the permanent slip of the block (the mean displacement of its
+  particles along the incline, first to last frame) against Newmark's (1965) rigid block
+  under the same record (:func:`newmark_reference`, :mod:`parsph.verify.newmark`).
 - ``biaxial`` has no known answer: it is judged by its peak and post-peak stress and the
   width of its shear band (:func:`biaxial_quantities`), which ``parsph study``
   extrapolates to d = 0 (docs/regularisation.md).
@@ -162,3 +165,68 @@ def biaxial_quantities(scene, run_dir) -> dict:
     width, _ = band_width(last, scene.domain.particle_size)
     return {"post_peak_kpa": float(np.interp(POST_PEAK_STRAIN, strain, sigma)) / 1e3,
             "peak_kpa": float(sigma.max()) / 1e3, "band_width_m": width}
+
+
+def newmark_reference(scene) -> dict:
+    r"""Newmark's rigid block for a scene built like ``newmark_block``
+    (:func:`parsph.verify.newmark.newmark_slip`): the incline is a level floor (normal +y)
+    under gravity tilted downhill along +x, :math:`\theta = \arctan(g_x / -g_y)`; the
+    floors' Coulomb coefficient :math:`\mu` (``walls.N.friction``, else
+    ``solid.wall_friction``; one value for all walls); the record's x column, times
+    ``loading.scale`` and shifted by ``loading.start_time``, is the ground's acceleration
+    along the slope (uphill is -x). Its y column must be zero: a shaking normal to the slope
+    changes the block's weight on it, which a constant :math:`a_y` leaves out.
+
+    Returns :func:`newmark_slip`'s dict with ``a_y`` and ``theta_deg`` added."""
+    from parsph.verify.newmark import newmark_slip, yield_acceleration
+
+    g = np.asarray(scene.gravity.g, dtype=float)
+    if scene.domain.dim != 2 or not (g[0] > 0.0 and g[1] < 0.0):
+        raise ParsphError(f"scene '{scene.name}': the Newmark reference takes a 2D scene whose "
+                          "gravity is tilted downhill along +x (g = [g sin t, -g cos t])")
+    mus = {w.friction if w.friction is not None else scene.solid.wall_friction
+           for w in scene.walls}
+    if len(mus) != 1:
+        raise ParsphError(f"scene '{scene.name}': the Newmark reference needs one friction "
+                          f"coefficient on every wall, the walls have {sorted(mus)}")
+    record = scene.data.get("record")
+    if record is None or np.any(record.a[:, 1] != 0.0):
+        raise ParsphError(f"scene '{scene.name}': the Newmark reference needs [loading] record "
+                          "with a zero y column (shaking along the slope only)")
+    mu = mus.pop()
+    theta = math.atan2(g[0], -g[1])
+    gn = float(np.linalg.norm(g))
+    a_y = yield_acceleration(gn, mu, theta)
+    load = scene.loading
+    out = newmark_slip(record.t + load.start_time, -load.scale * record.a[:, 0], a_y,
+                       a_up=gn * (mu * math.cos(theta) + math.sin(theta)))
+    out.update(a_y=a_y, theta_deg=math.degrees(theta))
+    return out
+
+
+def block_slip(run_dir) -> float:
+    """The slip (m) of a run's solid body along +x: the mean x displacement of the solid
+    particles, by id, from the first frame to the last."""
+    from parsph.io import read_frame
+
+    h5 = os.path.join(run_dir, "particles.h5")
+    first, last = read_frame(h5, 0), read_frame(h5, "last")
+    ids = first["id"][first["phase"] == 0]
+    if not len(ids):
+        raise ParsphError(f"{h5}: no solid particle in the first frame")
+    x0 = first["x"][np.isin(first["id"], ids)]
+    x1 = last["x"][np.isin(last["id"], ids)]
+    if len(x1) != len(x0):
+        raise ParsphError(f"{h5}: the last frame lacks some of the first frame's solids")
+    return float(x1[:, 0].mean() - x0[:, 0].mean())
+
+
+@reference("newmark_block")
+def newmark_slip_error(scene, run_dir) -> float:
+    """Relative error of the block's slip (:func:`block_slip`) against Newmark's rigid
+    block (:func:`newmark_reference`)."""
+    ref = newmark_reference(scene)["slip"]
+    if ref <= 0.0:
+        raise ParsphError(f"scene '{scene.name}': the record never reaches the yield "
+                          "acceleration; the rigid block does not slip, no relative error")
+    return abs(block_slip(run_dir) / ref - 1.0)
