@@ -6,6 +6,7 @@ from decomposition.reduce import global_sum
 from parsph.scene.geometry import estimate_count, generate, wall_layers
 from parsph.scene.materials import PHASE_WALL
 from parsph.scene.loader import load_scene
+from parsph.errors import SceneError
 from tests.scenes import MOVING_2D, MOVING_3D, alone_on_rank_zero, gather_particles, write
 
 
@@ -57,6 +58,84 @@ def test_heightmap_body(comm, tmp_path):
     assert np.all(soil[:, 0] <= 1.0) and np.all(soil[:, 1] <= 0.5)
     near_origin = soil[(soil[:, 0] < 0.1) & (soil[:, 1] < 0.1)]
     assert near_origin[:, 2].max() < 0.3
+
+
+LAYERS = """
+[scene]
+name = "layers"
+
+[domain]
+dim = 3
+particle_size = 0.1
+lo = [0.0, 0.0, 0.0]
+hi = [2.0, 1.0, 2.0]
+
+[run]
+end_time = 0.1
+mode = "geometry"
+
+[output]
+every = 0.1
+progress = false
+
+[materials.rock]
+model = "kinematic"
+density = 2000.0
+"""
+
+
+def _grid(path, row):
+    """An ESRI ASCII grid, 5 x 3 nodes every 0.5 m, every row (y) ``row`` (along x)."""
+    path.write_text("ncols 5\nnrows 3\nxllcorner 0\nyllcorner 0\ncellsize 0.5\n"
+                    + "".join(" ".join(f"{v:g}" for v in row) + "\n" for _ in range(3)))
+
+
+def _heightmap(name, top, **keys):
+    lines = [f'[[bodies]]\nname = "{name}"\nmaterial = "rock"\nshape = "heightmap"',
+             f'top = "{top}"'] + [f"{k} = {v!r}".replace("'", '"') for k, v in keys.items()]
+    return "\n".join(lines) + "\n"
+
+
+def test_layers_between_surfaces(comm, tmp_path):
+    """``bottom_surface``: a lens between the ground and a base that meets the ground at
+    its edges (a mass of varying thickness: soil 2 of the ``aso`` scene), and a layer
+    hanging from that base. Together they are exactly the one body from the ground down,
+    no lattice point twice and none missing, although the base's highest node (1.3 m) is
+    below the ground's (1.4 m): every height map hangs its lattice from the highest node
+    of all of them. The lens is empty where the base is the ground."""
+    ground = [1.0, 1.1, 1.2, 1.3, 1.4]          # x = 0, 0.5, 1, 1.5, 2 m
+    thick = [0.0, 0.0, 0.35, 0.0, 0.25]          # the lens: 0.35 m at x = 1, 0.25 at x = 2
+    _grid(tmp_path / "ground.asc", ground)
+    _grid(tmp_path / "base.asc", [g - t for g, t in zip(ground, thick)])
+    two = LAYERS + _heightmap("lens", "ground.asc", bottom_surface="base.asc") \
+        + _heightmap("under", "base.asc", bottom=0.0)
+    one = LAYERS + _heightmap("all", "ground.asc", bottom=0.0)
+    ids, x, _ = gather_particles(comm, generate(comm, load_scene(write(tmp_path, two))))
+    _, x_one, _ = gather_particles(comm, generate(comm, load_scene(write(tmp_path, one, "1.toml"))))
+    d = 0.1
+    key = lambda p: np.round(p / (0.5 * d)).astype(np.int64)  # noqa: E731 (lattice cells)
+    assert len(np.unique(key(x), axis=0)) == len(x)  # no point twice
+    assert np.array_equal(np.unique(key(x), axis=0), np.unique(key(x_one), axis=0))
+    n_lens = len(generate(comm, load_scene(write(tmp_path, LAYERS + _heightmap(
+        "lens", "ground.asc", bottom_surface="base.asc"), "lens.toml")))["x"])
+    lens = x[:global_sum(comm, n_lens)]  # the first body's ids come first
+    assert len(lens) > 0
+    # where the base is the ground (x <= 0.5 m and at x = 1.5 m) the lens has no point
+    assert np.all((lens[:, 0] > 0.5) & (np.abs(lens[:, 0] - 1.5) > 0.5 * d - 1e-9))
+    # the lens is 0.35 m thick at x = 1 m: 3 or 4 lattice points in its columns there
+    mid = lens[np.abs(lens[:, 0] - 0.95) < 1e-9]
+    assert len(np.unique(np.round(mid[:, 2], 9))) in (3, 4)
+
+
+def test_heightmap_body_needs_a_base(tmp_path):
+    """A height-map body without bottom, depth or bottom_surface, and a bottom_surface
+    that cannot be read: one message each, naming the key."""
+    _grid(tmp_path / "ground.asc", [1.0] * 5)
+    with pytest.raises(SceneError, match=r"bodies\[0\]\.bottom'.*'bottom_surface'"):
+        load_scene(write(tmp_path, LAYERS + _heightmap("a", "ground.asc")))
+    with pytest.raises(SceneError, match=r"bodies\[0\]\.bottom_surface'.*nothere.asc"):
+        load_scene(write(tmp_path, LAYERS + _heightmap("a", "ground.asc",
+                                                       bottom_surface="nothere.asc")))
 
 
 @pytest.mark.parametrize("d", [0.05, 0.035])
@@ -114,3 +193,4 @@ def test_estimate_count_samples_large_filtered_lattices(comm, monkeypatch):
     monkeypatch.setattr(geometry, "_COUNT_EXACT", 1 << 14)
     est = estimate_count(scn)
     assert n <= est <= 1.02 * n
+
