@@ -175,7 +175,7 @@ def test_ids_independent_of_rank_count(comm, tmp_path):
 
 @pytest.mark.parametrize("name", ["hydrostatic", "dam_break", "bingham_slump", "slope_failure",
                                   "slope_failure_solid", "elastic_plate", "granular_collapse",
-                                  "aso_like", "poiseuille"])
+                                  "aso", "poiseuille"])
 def test_estimate_count_is_the_generated_count(comm, name):
     """Tanks in closed form and small polygons tested point by point: exact. (The lattice
     candidates, which the budget used to take, counted dam_break's tank interior: 5.6x.)"""
@@ -194,3 +194,31 @@ def test_estimate_count_samples_large_filtered_lattices(comm, monkeypatch):
     est = estimate_count(scn)
     assert n <= est <= 1.02 * n
 
+
+def test_aso_terrain_is_its_generator_and_has_the_published_shape():
+    """The ``aso`` scene's three grids are ``jobs/make_aso_terrain.py``'s output byte for
+    byte, with the shape docs/aso.md matches to the published descriptions: the crown at
+    725 m (Song et al. 2017: 725 m), about 400 m above the river and 700 m from it
+    (web-gis.jp: about 400 m and 700 m), about 810 m of path (ICL: about 800 m of travel),
+    a source 34 degrees steep on average (ICL: 35.0) and 359 m long (PASCO: 350 m), the
+    gorge 77 m deep (ICL: 80 m), soil 2 30 m thick at most (ICL: at most about 35 m)."""
+    import os
+
+    from jobs import make_aso_terrain as gen
+
+    x, s, b, t = gen.grids()
+    for name, z in (("aso_surface.asc", s), ("aso_soil2_base.asc", b), ("aso_soil1_base.asc", t)):
+        with open(os.path.join(gen.DATA, name), encoding="utf-8") as fh:
+            assert fh.read() == gen.ascii_grid(z), name
+    m = gen.summary(x, s, b)
+    assert m["crown_m"] == pytest.approx(725.0, abs=1.0)
+    assert m["relief_crown_river_m"] == pytest.approx(400.0, abs=5.0)
+    assert m["crown_to_river_horizontal_m"] == pytest.approx(700.0, abs=1.0)
+    assert m["crown_to_river_along_surface_m"] == pytest.approx(800.0, abs=15.0)
+    assert 34.0 <= m["source_mean_slope_deg"] <= 35.5
+    assert m["source_length_along_surface_m"] == pytest.approx(350.0, abs=15.0)
+    rim = np.interp(40.0, x, s[0])                            # the far rim of the gorge
+    assert rim - m["river_m"] == pytest.approx(77.0, abs=1.0)
+    assert m["soil2_max_thickness_m"] == pytest.approx(30.0, abs=0.5)
+    assert np.all(s >= b) and np.all(b > t)                   # the layers in order
+    assert np.array_equal(b[:, x < 560.0], s[:, x < 560.0])   # no soil 2 below the source
