@@ -6,6 +6,7 @@ from decomposition.reduce import global_sum
 from parsph.scene.geometry import estimate_count, generate, wall_layers
 from parsph.scene.materials import PHASE_WALL
 from parsph.scene.loader import load_scene
+from parsph.errors import SceneError
 from tests.scenes import MOVING_2D, MOVING_3D, alone_on_rank_zero, gather_particles, write
 
 
@@ -59,6 +60,84 @@ def test_heightmap_body(comm, tmp_path):
     assert near_origin[:, 2].max() < 0.3
 
 
+LAYERS = """
+[scene]
+name = "layers"
+
+[domain]
+dim = 3
+particle_size = 0.1
+lo = [0.0, 0.0, 0.0]
+hi = [2.0, 1.0, 2.0]
+
+[run]
+end_time = 0.1
+mode = "geometry"
+
+[output]
+every = 0.1
+progress = false
+
+[materials.rock]
+model = "kinematic"
+density = 2000.0
+"""
+
+
+def _grid(path, row):
+    """An ESRI ASCII grid, 5 x 3 nodes every 0.5 m, every row (y) ``row`` (along x)."""
+    path.write_text("ncols 5\nnrows 3\nxllcorner 0\nyllcorner 0\ncellsize 0.5\n"
+                    + "".join(" ".join(f"{v:g}" for v in row) + "\n" for _ in range(3)))
+
+
+def _heightmap(name, top, **keys):
+    lines = [f'[[bodies]]\nname = "{name}"\nmaterial = "rock"\nshape = "heightmap"',
+             f'top = "{top}"'] + [f"{k} = {v!r}".replace("'", '"') for k, v in keys.items()]
+    return "\n".join(lines) + "\n"
+
+
+def test_layers_between_surfaces(comm, tmp_path):
+    """``bottom_surface``: a lens between the ground and a base that meets the ground at
+    its edges (a mass of varying thickness: soil 2 of the ``aso`` scene), and a layer
+    hanging from that base. Together they are exactly the one body from the ground down,
+    no lattice point twice and none missing, although the base's highest node (1.3 m) is
+    below the ground's (1.4 m): every height map hangs its lattice from the highest node
+    of all of them. The lens is empty where the base is the ground."""
+    ground = [1.0, 1.1, 1.2, 1.3, 1.4]          # x = 0, 0.5, 1, 1.5, 2 m
+    thick = [0.0, 0.0, 0.35, 0.0, 0.25]          # the lens: 0.35 m at x = 1, 0.25 at x = 2
+    _grid(tmp_path / "ground.asc", ground)
+    _grid(tmp_path / "base.asc", [g - t for g, t in zip(ground, thick)])
+    two = LAYERS + _heightmap("lens", "ground.asc", bottom_surface="base.asc") \
+        + _heightmap("under", "base.asc", bottom=0.0)
+    one = LAYERS + _heightmap("all", "ground.asc", bottom=0.0)
+    ids, x, _ = gather_particles(comm, generate(comm, load_scene(write(tmp_path, two))))
+    _, x_one, _ = gather_particles(comm, generate(comm, load_scene(write(tmp_path, one, "1.toml"))))
+    d = 0.1
+    key = lambda p: np.round(p / (0.5 * d)).astype(np.int64)  # noqa: E731 (lattice cells)
+    assert len(np.unique(key(x), axis=0)) == len(x)  # no point twice
+    assert np.array_equal(np.unique(key(x), axis=0), np.unique(key(x_one), axis=0))
+    n_lens = len(generate(comm, load_scene(write(tmp_path, LAYERS + _heightmap(
+        "lens", "ground.asc", bottom_surface="base.asc"), "lens.toml")))["x"])
+    lens = x[:global_sum(comm, n_lens)]  # the first body's ids come first
+    assert len(lens) > 0
+    # where the base is the ground (x <= 0.5 m and at x = 1.5 m) the lens has no point
+    assert np.all((lens[:, 0] > 0.5) & (np.abs(lens[:, 0] - 1.5) > 0.5 * d - 1e-9))
+    # the lens is 0.35 m thick at x = 1 m: 3 or 4 lattice points in its columns there
+    mid = lens[np.abs(lens[:, 0] - 0.95) < 1e-9]
+    assert len(np.unique(np.round(mid[:, 2], 9))) in (3, 4)
+
+
+def test_heightmap_body_needs_a_base(tmp_path):
+    """A height-map body without bottom, depth or bottom_surface, and a bottom_surface
+    that cannot be read: one message each, naming the key."""
+    _grid(tmp_path / "ground.asc", [1.0] * 5)
+    with pytest.raises(SceneError, match=r"bodies\[0\]\.bottom'.*'bottom_surface'"):
+        load_scene(write(tmp_path, LAYERS + _heightmap("a", "ground.asc")))
+    with pytest.raises(SceneError, match=r"bodies\[0\]\.bottom_surface'.*nothere.asc"):
+        load_scene(write(tmp_path, LAYERS + _heightmap("a", "ground.asc",
+                                                       bottom_surface="nothere.asc")))
+
+
 @pytest.mark.parametrize("d", [0.05, 0.035])
 def test_box_walls_continue_the_lattice_of_the_body_they_touch(comm, d):
     """slope_failure's 0.15 m floor and back wall at any d: the wall's first layer is one
@@ -96,7 +175,7 @@ def test_ids_independent_of_rank_count(comm, tmp_path):
 
 @pytest.mark.parametrize("name", ["hydrostatic", "dam_break", "bingham_slump", "slope_failure",
                                   "slope_failure_solid", "elastic_plate", "granular_collapse",
-                                  "aso_like", "poiseuille"])
+                                  "aso", "poiseuille"])
 def test_estimate_count_is_the_generated_count(comm, name):
     """Tanks in closed form and small polygons tested point by point: exact. (The lattice
     candidates, which the budget used to take, counted dam_break's tank interior: 5.6x.)"""
@@ -114,3 +193,32 @@ def test_estimate_count_samples_large_filtered_lattices(comm, monkeypatch):
     monkeypatch.setattr(geometry, "_COUNT_EXACT", 1 << 14)
     est = estimate_count(scn)
     assert n <= est <= 1.02 * n
+
+
+def test_aso_terrain_is_its_generator_and_has_the_published_shape():
+    """The ``aso`` scene's three grids are ``jobs/make_aso_terrain.py``'s output byte for
+    byte, with the shape docs/aso.md matches to the published descriptions: the crown at
+    725 m (Song et al. 2017: 725 m), about 400 m above the river and 700 m from it
+    (web-gis.jp: about 400 m and 700 m), about 810 m of path (ICL: about 800 m of travel),
+    a source 34 degrees steep on average (ICL: 35.0) and 359 m long (PASCO: 350 m), the
+    gorge 77 m deep (ICL: 80 m), soil 2 30 m thick at most (ICL: at most about 35 m)."""
+    import os
+
+    from jobs import make_aso_terrain as gen
+
+    x, s, b, t = gen.grids()
+    for name, z in (("aso_surface.asc", s), ("aso_soil2_base.asc", b), ("aso_soil1_base.asc", t)):
+        with open(os.path.join(gen.DATA, name), encoding="utf-8") as fh:
+            assert fh.read() == gen.ascii_grid(z), name
+    m = gen.summary(x, s, b)
+    assert m["crown_m"] == pytest.approx(725.0, abs=1.0)
+    assert m["relief_crown_river_m"] == pytest.approx(400.0, abs=5.0)
+    assert m["crown_to_river_horizontal_m"] == pytest.approx(700.0, abs=1.0)
+    assert m["crown_to_river_along_surface_m"] == pytest.approx(800.0, abs=15.0)
+    assert 34.0 <= m["source_mean_slope_deg"] <= 35.5
+    assert m["source_length_along_surface_m"] == pytest.approx(350.0, abs=15.0)
+    rim = np.interp(40.0, x, s[0])                            # the far rim of the gorge
+    assert rim - m["river_m"] == pytest.approx(77.0, abs=1.0)
+    assert m["soil2_max_thickness_m"] == pytest.approx(30.0, abs=0.5)
+    assert np.all(s >= b) and np.all(b > t)                   # the layers in order
+    assert np.array_equal(b[:, x < 560.0], s[:, x < 560.0])   # no soil 2 below the source

@@ -13,8 +13,8 @@ from parsph.scene.loader import load_scene
 from parsph.solid import kernels
 from parsph.verify.solid import csl_distance
 from parsph.solid.stage import TLSPH
-from tests.scenes import (assert_energy_balance, initial, last_frame, load_shared,
-                          run_on_one_and_two, scene_text, stats_rows, wall)
+from tests.scenes import (assert_energy_balance, first_and_last, hencky, initial, last_frame,
+                          load_shared, run_on_one_and_two, scene_text, stats_rows, wall, write)
 
 
 def _lattice(dim, n, d, jitter=0.0, seed=1):
@@ -310,3 +310,42 @@ def test_deforming_block_one_vs_two_ranks(comm, mpi_tmp_path):
         assert np.allclose(a["p"], b["p"], rtol=1e-7, atol=1e-4)
         assert a["eps_p"].max() > 0
         assert set(np.unique(b["rank"])) == {0, 1}
+
+
+HELD_BASE = scene_text(
+    "held_base", 0.05, [-0.1, -0.1], [1.1, 1.0], 0.05, g=[0.0, -9.81],
+    materials={"soft": hencky(1000.0, 1.0e5)},
+    bodies=[{"name": "base", "material": "soft", "shape": "polygon",
+             "vertices": [[0.0, 0.0], [1.0, 0.0], [1.0, 0.1], [0.0, 0.3]]},
+            {"name": "block", "material": "soft", "shape": "box", "lo": [0.0, 0.3],
+             "hi": [1.0, 0.6]}],
+    constraints=[{"name": "rock", "bodies": ["base"], "velocity": [0.0, 0.0]}])
+
+
+def test_constraint_selects_named_bodies(comm, mpi_tmp_path):
+    """``[[constraints]] bodies``: every particle of the named body is held, whatever its
+    shape (the ``aso`` scene's bedrock follows the terrain: no box selects it), and no
+    other; a box and bodies together select their intersection; an unknown body is
+    refused naming the key."""
+    from parsph.errors import SceneError
+    from parsph.scene.params_solid import Constraint
+    from parsph.solid.boundary import velocity_masks
+
+    scene = load_shared(comm, mpi_tmp_path, HELD_BASE, name="held.toml")
+    run(scene, os.path.join(mpi_tmp_path, "out"), comm=comm, progress=False)
+    if comm.rank == 0:
+        start, end = first_and_last(os.path.join(mpi_tmp_path, "out"))
+        base = start["x"][:, 1] < 0.3  # the polygon's points
+        moved = np.linalg.norm(end["x"] - start["x"], axis=1)
+        assert moved[base].max() == 0.0
+        assert moved[~base].max() > 1e-3  # the block settles under gravity
+    x = np.array([[0.5, 0.1], [0.5, 0.5], [1.5, 0.1]])
+    c = Constraint(name="c", lo=(0.0, 0.0), hi=(1.0, 1.0), bodies=("base",), velocity=(0.0, 0.0))
+    mask, _ = velocity_masks([c], x, np.ones(3, bool), np.array([0, 1, 0]), ["base", "block"])
+    assert mask[:, 0].tolist() == [True, False, False]  # in the box and in the body
+    bad = HELD_BASE.replace('bodies = ["base"]', 'bodies = ["bedrock"]')
+    with pytest.raises(SceneError, match=r"constraints\[0\]\.bodies'.*no body 'bedrock'"):
+        load_scene(write(mpi_tmp_path, bad, f"bad{comm.rank}.toml"))
+    none = HELD_BASE.replace('bodies = ["base"]\n', "")
+    with pytest.raises(SceneError, match=r"constraints\[0\]\.lo'.*in a box \(lo and hi\) or"):
+        load_scene(write(mpi_tmp_path, none, f"none{comm.rank}.toml"))

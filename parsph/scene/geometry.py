@@ -186,18 +186,26 @@ def _lattice(scene: Scene, item, is_wall: bool) -> _Lattice:
     if shape == "heightmap":
         grid = scene.data[item.top]
         (x0, x1), (y0, y1) = grid.extent
-        ztop = grid.z.max()
+        # the highest node of every height map a body of the scene has on top
+        ztop = max(scene.data[b.top].z.max() for b in scene.bodies if b.shape == "heightmap")
         below = item.below
+        base = scene.data[item.bottom_surface] if item.bottom_surface else None
         if math.isfinite(item.bottom):
             zb = item.bottom
         elif item.depth > 0:
             zb = grid.z.min() - below - item.depth
+        elif base is not None:
+            zb = base.z.min()
         else:
             raise SceneError(f"{scene.source}: body '{item.name}': a heightmap body needs "
-                             f"'bottom' (z of its base) or 'depth' (thickness below the surface)")
+                             f"'bottom' (z of its base), 'depth' (thickness below the "
+                             f"surface) or 'bottom_surface' (a grid of its base)")
+        if base is not None:
+            zb = max(zb, base.z.min())
         depth = item.depth
-        # every layer on one grid shares the lattice hanging from the highest point, so
-        # layers under layers meet without gaps or overlaps
+        # every height-map body hangs its lattice from the highest point of all of them,
+        # so layers under layers, on one grid or on grids with the same nodes (a stack of
+        # layer boundaries), meet without gaps or overlaps
         zb = ztop - math.ceil((ztop - zb) / d - 1e-9) * d
 
         def inside(x):
@@ -206,6 +214,10 @@ def _lattice(scene: Scene, item, is_wall: bool) -> _Lattice:
                                       (x[:, 2] <= top))
             if depth > 0:
                 keep &= x[:, 2] >= top - below - depth
+            if base is not None:
+                # strictly above: a point on a surface shared with the top of the body
+                # below belongs to that body (whose top is inclusive), never to both
+                keep &= x[:, 2] > surface(base, x[:, 0], x[:, 1])
             return keep
 
         return _Lattice((x0, y0, zb), _counts((x0, y0, zb), (x1, y1, ztop), d), inside)

@@ -144,6 +144,10 @@ class Body:
                         ge=0.0)
     below: float = spec(0.0, doc="heightmap: the body starts this far below the surface (m): "
                         "layers under layers (a layer = below .. below + depth)", ge=0.0)
+    bottom_surface: str = spec("", doc="heightmap: grid of a base surface z_b(x, y) (ESRI ASCII "
+                               "or GeoTIFF): the body lies above it (where it is at or above "
+                               "the top, the body is empty); a mass of varying thickness, a "
+                               "layer boundary (docs/geometry.md)")
     file: str = spec("", doc="mesh: STL (binary or ASCII) or OBJ file of a closed surface")
     scale: float = spec(1.0, doc="mesh: factor from file units to m (0.001 for mm)", gt=0.0)
     rotate: tuple[float, ...] = spec((), doc="mesh: [ax, ay, az] degrees about x, then y, "
@@ -531,6 +535,9 @@ def _check_shape(source, key, shape, item, dim, lo, hi):
             _err(source, f"{key}.shape", "a heightmap body is for 3D scenes")
         if not item.top:
             _err(source, f"{key}.top", "a heightmap body needs the path of its top-surface grid")
+        if not (math.isfinite(item.bottom) or item.depth > 0 or item.bottom_surface):
+            _err(source, f"{key}.bottom", "a heightmap body needs 'bottom' (z of its base), "
+                 "'depth' (thickness below the surface) or 'bottom_surface' (a grid of its base)")
 
 
 def _check_polygon_inside(source, key, item, dim, lo, hi):
@@ -564,6 +571,11 @@ def _load_data(scn: Scene, source: str) -> dict:
         if body.shape == "heightmap":
             path = body.top if os.path.isabs(body.top) else os.path.join(base, body.top)
             data[body.top] = read_grid(path, key=f"bodies[{i}].top", source=source)
+            if body.bottom_surface:
+                path = body.bottom_surface if os.path.isabs(body.bottom_surface) else \
+                    os.path.join(base, body.bottom_surface)
+                data[body.bottom_surface] = read_grid(path, key=f"bodies[{i}].bottom_surface",
+                                                      source=source)
     for group, items in (("bodies", scn.bodies), ("walls", scn.walls)):
         for i, item in enumerate(items):
             if item.shape == "mesh":

@@ -73,7 +73,8 @@ class Constraint:
     """``[[constraints]]``: Dirichlet conditions and initial velocities of solid particles.
 
     A constraint selects the solid particles whose *reference* position X lies in the
-    box ``lo..hi``. ``kind = "velocity"`` prescribes the velocity components named in
+    box ``lo..hi``, and/or that belong to the ``bodies`` named (a body of any shape: a
+    terrain-following bedrock layer no box can select). ``kind = "velocity"`` prescribes the velocity components named in
     ``axes`` at every step (``velocity = [0, 0]`` fixes them); ``kind = "initial"`` sets
     the initial velocity once from a named ``profile``.
     """
@@ -81,8 +82,12 @@ class Constraint:
     name: str = spec(doc="constraint name")
     kind: str = spec("velocity", doc="velocity (prescribed every step) | initial (set once)",
                      choices=("velocity", "initial"))
-    lo: tuple[float, ...] = spec(doc="lower corner of the selection box in X (m)")
-    hi: tuple[float, ...] = spec(doc="upper corner of the selection box in X (m)")
+    lo: tuple[float, ...] = spec((), doc="lower corner of the selection box in X (m); "
+                                 "required without bodies")
+    hi: tuple[float, ...] = spec((), doc="upper corner of the selection box in X (m); "
+                                 "required without bodies")
+    bodies: tuple[str, ...] = spec((), doc="select only the particles of these [[bodies]] "
+                                   "(by name), in the box if one is given")
     velocity: tuple[float, ...] = spec((), doc="prescribed or uniform velocity (m/s)")
     axes: tuple[bool, ...] = spec((), doc="velocity: which components are prescribed "
                                   "(default all)")
@@ -111,7 +116,17 @@ def check_solid(scene, source: str) -> None:
         if c.name in names:
             raise SceneError(f"{source}: key '{key}.name': duplicate constraint name '{c.name}'")
         names.add(c.name)
-        for field, vec, required in (("lo", c.lo, True), ("hi", c.hi, True),
+        boxed = not c.bodies or bool(c.lo or c.hi)
+        if boxed and not (c.lo or c.hi):
+            raise SceneError(f"{source}: key '{key}.lo': a constraint selects the particles "
+                             f"in a box (lo and hi) or of named bodies (bodies = [...]); "
+                             f"give one")
+        known = [b.name for b in scene.bodies]
+        for name in c.bodies:
+            if name not in known:
+                raise SceneError(f"{source}: key '{key}.bodies': no body '{name}' in "
+                                 f"[[bodies]] (bodies: {', '.join(known) or 'none'})")
+        for field, vec, required in (("lo", c.lo, boxed), ("hi", c.hi, boxed),
                                      ("velocity", c.velocity, c.kind == "velocity"),
                                      ("axes", c.axes, False),
                                      ("centre", c.centre, c.profile == "rigid_rotation"

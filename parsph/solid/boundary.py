@@ -20,9 +20,18 @@ import numpy as np
 BETA1 = 1.8751040687119611
 
 
-def _in_box(X, c):
-    lo, hi = np.asarray(c.lo), np.asarray(c.hi)
-    return np.all((X >= lo) & (X <= hi), axis=1)
+def _selected(X, c, body=None, names=()):
+    """The rows a constraint selects: reference position in its box (if it has one) and
+    body among its ``bodies`` (if it names any; ``body`` the rows' body indices into
+    ``names``, the scene's body names in order)."""
+    sel = np.ones(len(X), dtype=bool)
+    if c.lo:
+        lo, hi = np.asarray(c.lo), np.asarray(c.hi)
+        sel &= np.all((X >= lo) & (X <= hi), axis=1)
+    if c.bodies:
+        wanted = [k for k, name in enumerate(names) if name in c.bodies]
+        sel &= np.isin(body, wanted)
+    return sel
 
 
 def cantilever_mode1(x, root, length):
@@ -42,13 +51,14 @@ def cantilever_mode1(x, root, length):
     return f(s) / f(length)
 
 
-def initial_velocity(constraints, X, v, solid) -> None:
-    """Apply the ``kind = "initial"`` constraints to ``v`` (rows where ``solid``)."""
+def initial_velocity(constraints, X, v, solid, body=None, names=()) -> None:
+    """Apply the ``kind = "initial"`` constraints to ``v`` (rows where ``solid``; ``body``
+    and ``names`` as for :func:`_selected`)."""
     dim = X.shape[1]
     for c in constraints:
         if c.kind != "initial":
             continue
-        sel = _in_box(X, c) & solid
+        sel = _selected(X, c, body, names) & solid
         if c.profile == "uniform":
             v[sel] = np.asarray(c.velocity)
         elif c.profile == "cantilever_mode1":
@@ -59,15 +69,16 @@ def initial_velocity(constraints, X, v, solid) -> None:
             v[sel, 1] = c.omega * r[:, 0]
 
 
-def velocity_masks(constraints, X, solid):
-    """(mask (N, dim) of prescribed components, values (N, dim)) for ``kind = "velocity"``."""
+def velocity_masks(constraints, X, solid, body=None, names=()):
+    """(mask (N, dim) of prescribed components, values (N, dim)) for ``kind = "velocity"``
+    (``body`` and ``names`` as for :func:`_selected`)."""
     n, dim = X.shape
     mask = np.zeros((n, dim), dtype=bool)
     value = np.zeros((n, dim))
     for c in constraints:
         if c.kind != "velocity":
             continue
-        sel = _in_box(X, c) & solid
+        sel = _selected(X, c, body, names) & solid
         axes = np.asarray(c.axes if c.axes else (True,) * dim, dtype=bool)
         for a in range(dim):
             if axes[a]:

@@ -132,7 +132,8 @@ class TLSPH:
         self.X3 = self._pad(p["X"])
         n = p.n_owned
         self.vmask, self.vvalue = velocity_masks(ctx.scene.constraints, p["X"][:n],
-                                                 self.sel[:n])
+                                                 self.sel[:n], p["body"][:n],
+                                                 [b.name for b in ctx.scene.bodies])
 
     @staticmethod
     def _pad(a):
@@ -180,7 +181,8 @@ class TLSPH:
                 p["tau"][:n][sel] = -m.initial_pressure * eye
                 p["p_c"][:n][sel] = m.preconsolidation
         p["p"][:n][fresh] = -np.trace(p["tau"][:n][fresh], axis1=1, axis2=2) / 3.0
-        initial_velocity(ctx.scene.constraints, p["X"][:n], p["v"][:n], fresh)
+        initial_velocity(ctx.scene.constraints, p["X"][:n], p["v"][:n], fresh, p["body"][:n],
+                         [b.name for b in ctx.scene.bodies])
         p["solid_init"][:n][fresh] = 1
 
     def _stress_terms(self, ctx):

@@ -118,7 +118,7 @@ def _distribute(ctx, force: bool = False) -> None:
         fluid = ~solid & ~wall
         # the walls do not move: a partition of their own, built once, balancing them
         # alone. One partition for walls and fluid balanced their summed work, not the
-        # fluid: aso_like at d = 4 m had 6 and 1,684 fluid rows on its 2 ranks
+        # fluid: the former aso_like at d = 4 m had 6 and 1,684 fluid rows on its 2 ranks
         # (docs/decomposition.md)
         if force or ctx.rcb_wall is None:
             ctx.rcb_wall = RCB.build(comm, x[wall], ctx.box)
