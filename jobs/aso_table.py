@@ -18,12 +18,15 @@ import argparse
 import os
 import sys
 
+import h5py
 import numpy as np
 
 ROOT = os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
 CROWN_X = 860.0     # m: the crown, the upper end of soil 2 (jobs/make_aso_terrain.py)
 WIDTH = 96.0        # m: the scene's periodic width
 SOURCE_WIDTH = 140.0  # m: the source's average width (PASCO, docs/aso.md)
+SLID = 2.0          # m: a permanent displacement counted as sliding (the shaking's
+                    # elastic and small plastic part moved the lower slope < 2 m at d = 16 m)
 
 
 def row(run_dir: str) -> dict:
@@ -39,13 +42,15 @@ def row(run_dir: str) -> dict:
     x0, x1 = first["x"][o0], last["x"][o1]
     phase0 = first["phase"][o0]
     soil = phase0 != 2
-    d = float(np.min(np.diff(np.unique(np.round(x0[soil, 1], 6)))))
+    with h5py.File(h5, "r") as f:  # the run's d (the settled lattice is not exact)
+        d = float(f.attrs["particle_size"])
     data = os.path.join(ROOT, "parsph", "scenes", "data")
     ground = read_grid(os.path.join(data, "aso_surface.asc"))
     base = read_grid(os.path.join(data, "aso_soil2_base.asc"))
     soil2 = soil & (x0[:, 2] > surface(base, x0[:, 0], x0[:, 1])) & \
         (x0[:, 2] <= surface(ground, x0[:, 0], x0[:, 1]))
     moved = np.linalg.norm(x1 - x0, axis=1)
+    slid = soil & (moved > SLID)
     fl = last["fluidised"][o1].astype(bool)
     fluid = last["phase"][o1] == 1
     stats = read_stats(os.path.join(run_dir, "stats.csv"))
@@ -62,6 +67,14 @@ def row(run_dir: str) -> dict:
         "max_speed_30s_ms": float(vmax[at30]) if abs(t[at30] - 30.0) < 1.0 else None,
         "max_speed_ms": float(vmax.max()), "ke_end_over_peak": float(ke[-1] / ke.max()),
         "soil2_mean_disp_m": float(moved[soil2].mean()),
+        "moved_max_m": float(moved[soil].max()),
+        # where it slid: the soil that moved more than SLID metres, by where it started
+        "slid_x_m": (float(x0[slid, 0].min()), float(x0[slid, 0].max())) if slid.any()
+        else None,
+        "slid_volume_per_m_m3": float(slid.sum() * d ** 3 / WIDTH),
+        # the last time the kinetic energy was above 1e-3 of its peak: at rest after it
+        "rest_from_s": float(t[np.flatnonzero(ke > 1e-3 * ke.max())[-1]])
+        if ke.max() > 0.0 else 0.0,
         "lower_max_disp_m": float(moved[soil & (x0[:, 0] < 480.0)].max()),
     }
 

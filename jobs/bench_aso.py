@@ -9,9 +9,10 @@ end time), and prints in the long CSV format of ``jobs/benchlib.py``:
   it reached;
 - seconds per step of the step loop's clock (``stats.csv`` ``elapsed_s``: everything a
   step costs, output and checks included), mean and median, in three phases: *before*
-  (no soil fluidised yet), *during* (fluid exists and the kinetic energy is above 1 % of
-  its peak) and *after* (below it, after the peak); with the stages' shares (the solid,
-  the fluid, the phase change, migration, halo, neighbour lists, output);
+  the kinetic energy first passes 1 % of its peak, *during* (up to the last step above
+  it: the shaking and the slide) and *after* (the deposit coming to rest); with the
+  stages' shares (the solid, the fluid, the phase change, migration, halo, neighbour
+  lists, output) and the mean number of fluid rows;
 - moving particles (soil + fluid) x steps per second per core in each phase;
 - the whole process's peak RSS of every rank (MiB) and bytes per particle;
 - the projected wall time at ``--project`` metres (the paper's 3 m) on ``--cores`` cores:
@@ -45,13 +46,15 @@ PARTS = {"solid": ("wall_s_solid",), "fluid": ("wall_s_fluid",),
 
 
 def phases(stats) -> dict:
-    """Masks of the steps before, during and after the slide (module docstring)."""
-    n_fluid = np.asarray(stats["n_fluid"], float)
+    """Masks of the steps before, during and after the slide (module docstring): the
+    slide is the stretch from the first to the last step whose kinetic energy is above 1 %
+    of its peak (the shaking and the flow it sets off)."""
     ke = np.asarray(stats["kinetic_energy"], float)
-    peak = int(np.argmax(ke))
-    quiet = ke <= 1e-2 * ke[peak]
-    after = quiet & (np.arange(len(ke)) > peak) & (n_fluid > 0)
-    return {"before": n_fluid == 0, "during": (n_fluid > 0) & ~after, "after": after}
+    idx = np.arange(len(ke))
+    above = np.flatnonzero(ke > 1e-2 * ke.max()) if ke.max() > 0.0 else np.array([0])
+    first, last = int(above[0]), int(above[-1])
+    return {"before": idx < first, "during": (idx >= first) & (idx <= last),
+            "after": idx > last}
 
 
 def figures(stats, comm_size: int, wall_s: float, particles_moving) -> dict:
@@ -80,6 +83,7 @@ def figures(stats, comm_size: int, wall_s: float, particles_moving) -> dict:
                 out[f"{name}_share_{part}"] = float(share)
         out[f"{name}_moving_particle_steps_per_s_per_core"] = float(
             moving[mask].sum() / s.sum() / comm_size)
+        out[f"{name}_fluid_rows_mean"] = float(np.asarray(stats["n_fluid"], float)[mask].mean())
     return out
 
 

@@ -699,13 +699,16 @@ def _aso_run(comm, tmp, sets, name):
 
 @pytest.mark.mpi(min_size=2)
 def test_aso_slides_in_its_source_area_with_the_earthquake(comm, mpi_tmp_path):
-    """The ``aso`` scene at d = 16 m under its record (paper Fig. 12): the slope fails in
-    the source area, where soil 2 lies (x = 560-860 m, the crown at 860 m), and nowhere
-    else. Measured on 2 ranks to 20 s: 78 particles fluidised, all from x = 728-856 m,
-    30 of them soil 2; the source area moved up to 97 m, the rest of the slope (x < 480 m:
-    the lower slope, the gorge and the far bank) at most 2.9 m (its settling under the
-    gravity switched on at t = 0 and the shaking). Bounds: a slide is tens of particles
-    and tens of metres; a spill from elsewhere, or the whole slope moving, fails them."""
+    """The ``aso`` scene at d = 16 m under its record (paper Fig. 12), from its geostatic
+    stage (``auto``: k0_gravity): the slope slides in the source area, where soil 2 lies
+    (x = 560-860 m, the crown at 860 m), and nowhere else. Measured on 2 ranks to 20 s:
+    soil 2 moved 7.0 m on average (its 90 particles), the source area up to 11.5 m, the
+    rest of the slope (x < 480 m: the lower slope, the gorge and the far bank) at most
+    2.3 m (the shaking's elastic and small plastic part); 6 particles fluidised, all from
+    x = 824 m (soil 1 under the crown). Bounds: soil 2's mean permanent displacement is
+    a slide of metres (Newmark: 0.55 m/s^2 of yield acceleration under a 5.2 m/s^2 record,
+    docs/aso.md) and more than the lower slope's largest; a spill from elsewhere, or the
+    whole slope moving, fails them."""
     got = _aso_run(comm, mpi_tmp_path, [], "quake")
     if got is None:
         return
@@ -715,66 +718,66 @@ def test_aso_slides_in_its_source_area_with_the_earthquake(comm, mpi_tmp_path):
     fluidised = end["fluidised"].astype(bool)
     moved = np.linalg.norm(end["x"] - start["x"], axis=1)
     source = soil & (x0 > 560.0) & (x0 < 880.0)  # soil 2's footprint, the crown + 20 m
-    assert fluidised.sum() >= 30
-    assert np.all(source[fluidised])             # every fluidised particle from there
-    assert fluidised[body == 0].sum() >= 5       # soil 2 takes part
-    assert moved[source].max() > 40.0            # it slid, by several particles
-    assert moved[soil & (x0 < 480.0)].max() < 8.0  # the lower slope stayed (< d / 2)
-    assert moved[body == 3].max() == 0.0         # the bedrock is held
+    lower = moved[soil & (x0 < 480.0)].max()
+    assert moved[body == 0].mean() > 3.0          # soil 2 slid, by metres
+    assert moved[body == 0].mean() > 2.0 * lower  # more than anything down the slope
+    assert lower < 8.0                            # the lower slope stayed (< d / 2)
+    assert np.all(source[fluidised])              # any fluidised particle from the source
+    assert moved[body == 3].max() == 0.0          # the bedrock is held
 
 
-@pytest.mark.xfail(strict=False, reason="needs the geostatic stage")
 @pytest.mark.mpi(min_size=2)
 def test_aso_stays_put_without_the_earthquake(comm, mpi_tmp_path):
-    """The ``aso`` scene at d = 16 m without its record (paper Fig. 11), to 60 s: no
-    particle fluidises, no soil particle moves by a quarter of d (4 m) from the first
-    frame, and the soil is at rest at the end (below 5 cm/s). Without a geostatic stage
-    the soil starts stress-free and settles when gravity comes on at t = 0 (measured: up
-    to 6.7 m by 20 s on the steep upper slope, no particle fluidised, plastic strain up to
-    0.27): that settling fails the bound, not a slide."""
+    """The ``aso`` scene at d = 16 m without its record (paper Fig. 11), from the same
+    geostatic stage, to rest (at most 60 s): no particle fluidises, no soil particle
+    moves by 0.25 m from the settled first frame, and the soil is at rest at the end
+    (below 5 cm/s). Measured on 2 ranks: at rest by 46 s, no soil particle moved 7.1 mm,
+    the fastest 0.13 mm/s at the end. (Stress-free, the soil had settled by up to 6.7 m when gravity
+    came on at t = 0: docs/geostatic.md.)"""
     got = _aso_run(comm, mpi_tmp_path, ["loading.scale=0", "run.end_time=60"], "still")
     if got is None:
         return
     start, end, body = got
     soil = body < 3
     assert not end["fluidised"].any()
-    assert np.linalg.norm(end["x"] - start["x"], axis=1)[soil].max() < 4.0
+    assert np.linalg.norm(end["x"] - start["x"], axis=1)[soil].max() < 0.25
     assert np.linalg.norm(end["v"], axis=1)[soil].max() < 0.05
 
 
 @pytest.mark.slow
 @pytest.mark.mpi(min_size=2)
 def test_aso_scene(comm, mpi_tmp_path):
-    """The built-in ``aso`` at its default size (d = 8 m) for the first 40 s (2 ranks; the
-    README's and docs/aso.md's figures; the scene runs to 500 s): its particles (the
-    lattice of the layers: exact), the slope fluidises in the source area only (x =
-    560-880 m: soil 2's footprint and the head scarp up to 20 m behind the crown) and the
-    debris runs down it (measured: 276 fluidised from x = 836-876 m from 12.5 s, the
-    lowest at x = 657 m by 40 s, 203 m below the crown; bounds: a slide of 100 particles
-    or more that ran 100 m), and the energy balance (docs/energy.md) rises by at most
-    1e-3 of the peak kinetic energy in a step and over any stretch (measured: 1.6e-4 and
-    4.9e-4)."""
+    """The built-in ``aso`` as it is (d = 8 m, 2 ranks; the README's and docs/aso.md's
+    figures): its particles (the lattice of the layers: exact); from its geostatic stage
+    the earthquake slides the upper slope and the run stops at rest, long before 500 s
+    (measured: at rest from 70.5 s, stopped at 75.5 s); soil 2 moves 6.95 m on average,
+    the lower slope (x < 480 m) 2.8 m at most; no particle fluidises at the scene's
+    internal length (the trigger's windowed strain reaches 0.36 of 0.5, docs/aso.md);
+    bounds: soil 2's mean displacement within a factor of 2, the lower slope below d / 2,
+    fluid (if any) only from the source area, at rest by 100 s; the energy balance
+    (docs/energy.md) rises by at most 1e-3 of the peak kinetic energy in a step and over
+    any stretch."""
+    from jobs.aso_table import row
     from parsph.scene.geometry import generate
 
-    scene = load_scene("aso", ["run.end_time=40", "output.every=2", "output.progress=false",
-                               "output.checkpoint_every=0"])
+    scene = load_scene("aso", ["output.progress=false", "output.checkpoint_every=0"])
     out = os.path.join(mpi_tmp_path, "aso")
     run(scene, out, comm=comm, progress=False)
     n_made = comm.allreduce(len(generate(comm, scene)["id"]))
     if comm.rank != 0:
         return
     figures = run_figures(out, scene.output.front_direction)
+    table = row(out)
+    figures.update({k: v for k, v in table.items()
+                    if isinstance(v, (int, float)) and k != "run"})
     start, end = first_and_last(out)
     fl = end["fluidised"].astype(bool)
-    x0 = start["x"][fl, 0]
-    lowest = float(end["x"][end["phase"] == 1, 0].min())
-    figures.update(fluidised_x_min_m=float(x0.min()), fluidised_x_max_m=float(x0.max()),
-                   fluid_lowest_x_m=lowest)
     record("aso", figures, ranks=comm.size)
     assert figures["particles"] == n_made == 15480
-    assert figures["n_fluidised"] >= 100
-    assert x0.min() > 560.0 and x0.max() < 880.0
-    assert lowest < 760.0
+    assert figures["end_time_s"] < 100.0                     # stopped at rest
+    assert 3.5 < table["soil2_mean_disp_m"] < 14.0
+    assert table["lower_max_disp_m"] < 4.0
+    assert np.all((start["x"][fl, 0] > 560.0) & (start["x"][fl, 0] < 880.0))
     assert_energy_balance(stats_rows(out), 1e-3, 1e-3, "aso")
 
 

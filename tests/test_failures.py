@@ -84,6 +84,27 @@ def test_checkpoint_write_dying_halfway_keeps_the_previous_one(tmp_path, ranks):
     assert r.returncode == 0, r.stderr
 
 
+def test_aso_cluster_job_runs_the_scene_at_three_metres(tmp_path):
+    """jobs/aso_d3.sbatch hands the aso scene at d = 3 m (and the user's SET after it) to
+    jobs/slurm.sbatch; a stand-in srun records what it was asked to run."""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    (bin_dir / "srun").write_text(f'#!/bin/bash\necho "$@" >> {tmp_path}/srun.log\n')
+    (bin_dir / "srun").chmod(0o755)
+    env = _env()
+    env.update(PATH=f"{bin_dir}:{env['PATH']}", SLURM_SUBMIT_DIR=root, OUT=str(tmp_path / "o"),
+               SET="output.every=1", VENV=str(tmp_path / "none"))
+    r = subprocess.run(["bash", os.path.join(root, "jobs", "aso_d3.sbatch")], env=env,
+                       capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL)
+    assert r.returncode == 0, r.stdout + r.stderr
+    args = (tmp_path / "srun.log").read_text().split()
+    assert args[:3] == ["parsph", "run", "aso"]
+    sets = [args[i + 1] for i, a in enumerate(args) if a == "--set"]
+    assert sets == ["domain.particle_size=3", "output.checkpoint_every=25", "output.every=1"]
+    assert args[args.index("--out") + 1] == str(tmp_path / "o")
+
+
 def test_slurm_template_checkpoints_and_requeues(tmp_path):
     """jobs/slurm.sbatch with stand-ins for srun (mpirun -n 2) and scontrol (a log)."""
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

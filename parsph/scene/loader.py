@@ -569,13 +569,10 @@ def _load_data(scn: Scene, source: str) -> dict:
         data["record"] = read_record(path, scn.domain.dim, "loading.record", source)
     for i, body in enumerate(scn.bodies):
         if body.shape == "heightmap":
-            path = body.top if os.path.isabs(body.top) else os.path.join(base, body.top)
-            data[body.top] = read_grid(path, key=f"bodies[{i}].top", source=source)
-            if body.bottom_surface:
-                path = body.bottom_surface if os.path.isabs(body.bottom_surface) else \
-                    os.path.join(base, body.bottom_surface)
-                data[body.bottom_surface] = read_grid(path, key=f"bodies[{i}].bottom_surface",
-                                                      source=source)
+            for key in ("top", "bottom_surface"):  # the grids, by their path
+                if name := getattr(body, key):
+                    path = os.path.join(base, name)  # (an absolute name stays as it is)
+                    data[name] = read_grid(path, key=f"bodies[{i}].{key}", source=source)
     for group, items in (("bodies", scn.bodies), ("walls", scn.walls)):
         for i, item in enumerate(items):
             if item.shape == "mesh":
