@@ -25,8 +25,8 @@ ROOT = os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(__file__)),
 CROWN_X = 860.0     # m: the crown, the upper end of soil 2 (jobs/make_aso_terrain.py)
 WIDTH = 96.0        # m: the scene's periodic width
 SOURCE_WIDTH = 140.0  # m: the source's average width (PASCO, docs/aso.md)
-SLID = 2.0          # m: a permanent displacement counted as sliding (the shaking's
-                    # elastic and small plastic part moved the lower slope < 2 m at d = 16 m)
+SLID = 5.0          # m: a permanent displacement counted as sliding (the shaking's
+                    # elastic and small plastic part moved the lower slope < 3 m at d = 8, 16 m)
 
 
 def row(run_dir: str) -> dict:
@@ -60,6 +60,7 @@ def row(run_dir: str) -> dict:
     return {
         "run": os.path.basename(os.path.normpath(run_dir)), "d_m": d, "t_end_s": float(t[-1]),
         "n_fluidised": int(fl.sum()), "soil2_fluidised": int((fl & soil2).sum()),
+        "first_fluidised_s": float(t[stats["n_fluidised"] > 0][0]) if fl.any() else None,
         "volume_per_m_m3": volume / WIDTH, "volume_140m_m3": volume / WIDTH * SOURCE_WIDTH,
         "from_x_m": (float(x0[fl, 0].min()), float(x0[fl, 0].max())) if fl.any() else None,
         "fluid_lowest_x_m": float(x1[fluid, 0].min()) if fluid.any() else None,

@@ -20,6 +20,9 @@ end time), and prints in the long CSV format of ``jobs/benchlib.py``:
   cost per moving particle-step of each phase as measured here, and a parallel efficiency
   ``--efficiency`` from here to there (an assumption, printed).
 
+A run stopped by a signal (SIGTERM, SIGUSR1: a batch system's time limit; it writes its
+checkpoint) still reports what it measured, with ``stopped_by_signal`` = 1.
+
     mpirun -n 2 .venv/bin/python jobs/bench_aso.py --d 8 --out out/aso_d8
     mpirun -n 2 .venv/bin/python jobs/bench_aso.py --d 4 --out out/aso_d4 --csv out/bench/aso.csv
 """
@@ -116,6 +119,7 @@ def main():
     import tempfile
 
     from decomposition.reduce import broadcast
+    from parsph.errors import Preempted
     from parsph.io import read_stats
     from parsph.scene.loader import load_scene
     from parsph.step.run import run
@@ -126,7 +130,11 @@ def main():
                                 if comm.rank == 0 else None)
     scene = load_scene(args.scene, [f"domain.particle_size={args.d}", "output.progress=false",
                                     *args.set])
-    summary = run(scene, out, comm=comm, petsc_args=petsc_args, progress=False)
+    try:
+        summary = run(scene, out, comm=comm, petsc_args=petsc_args, progress=False)
+        stopped = 0
+    except Preempted:  # stopped by a signal (a batch system's limit): report what ran
+        summary, stopped = None, 1
     wall = time.perf_counter() - t0
     rss = allgather(comm, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
     if comm.rank != 0:
@@ -134,6 +142,9 @@ def main():
     stats = read_stats(os.path.join(out, "stats.csv"))
     moving = np.asarray(stats["n_solid"], float) + np.asarray(stats["n_fluid"], float)
     fig = figures(stats, comm.size, wall, moving)
+    fig["stopped_by_signal"] = stopped
+    if summary is None:
+        summary = {"dim": scene.domain.dim, "particles": int(stats["n_particles"][-1])}
     fig.update({f"peak_rss_mib_rank{r}": float(m) for r, m in enumerate(rss)})
     fig["bytes_per_particle"] = float(sum(rss) * 2 ** 20 / summary["particles"])
     fig.update(project(fig, args.d, args.project, args.cores, comm.size, args.efficiency))
