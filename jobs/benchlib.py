@@ -3,12 +3,21 @@
 Columns: ``benchmark, code, dim, particles, ranks, metric, value`` — so benchmarks with
 different figures (particle-steps/s, KSP iterations, bytes per particle, …) and peer codes
 measured side by side land in the same file, which ``jobs/bench.sh`` writes.
+
+The rules a job that backs a figure of the README follows, with the helpers here: it
+times the whole step by the step loop's clock (``stats.csv`` ``elapsed_s``,
+:func:`step_times`) and reports the mean over the steps after the first (the first row,
+which holds the run's set-up, apart as ``startup_s``), a median only beside it; memory is
+the whole process's peak RSS on every rank (:func:`peak_rss_mib`, reset by
+:func:`reset_peak_rss` after a warm-up in the same process), summed over the ranks,
+over all particles.
 """
 from __future__ import annotations
 
 import csv
 import os
 import re
+import resource
 import subprocess
 import sys
 import time
@@ -32,6 +41,80 @@ def record(path, benchmark: str, code: str, dim: int, particles: int, ranks: int
             if new:
                 w.writeheader()
             w.writerows(rows)
+
+
+#: The fluids of the coupled tanks of jobs/bench_memory.py and jobs/bench_overhead.py (their
+#: scenes' ``{fluids}``): the water column and the Bingham debris the soil fluidises into.
+FLUIDS = """[materials.water]
+model = "newtonian"
+density = 1000.0
+viscosity = 1.0e-3
+[materials.debris]
+model = "bingham"
+density = 1800.0
+viscosity = 1.0e-3
+viscosity_max = 1.0e4
+cohesion = 10.0
+friction_angle = 19.5
+"""
+
+
+def reset_peak_rss() -> bool:
+    """Reset this process's peak RSS (Linux: write ``5`` to ``/proc/self/clear_refs``, which
+    sets ``VmHWM`` to the present RSS), e.g. after a warm-up in the same process. False
+    where that cannot be done: :func:`peak_rss_mib` is then the process's peak since it
+    started, which a job says in its output as ``peak_rss_since_start = 1``."""
+    try:
+        with open("/proc/self/clear_refs", "w") as fh:
+            fh.write("5")
+        return True
+    except OSError:
+        return False
+
+
+def peak_rss_mib() -> float:
+    """This process's peak resident set (MiB), the whole process (interpreter, numba, PETSc,
+    hypre, MPI included): ``VmHWM`` of ``/proc/self/status`` (since the last
+    :func:`reset_peak_rss`), else ``ru_maxrss`` (since the process started)."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return float(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    scale = 1.0 / 2 ** 20 if sys.platform == "darwin" else 1.0 / 1024.0  # bytes / KiB
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * scale
+
+
+def step_times(stats, column: str = "elapsed_s"):
+    """The run's wall time per step as a user waits for it, from ``stats.csv``.
+
+    ``elapsed_s`` is the step loop's clock: wall seconds since the run began, written
+    after every step (every step's set-ups, migrations, checks, statistics and output
+    in). Returns ``(startup_s, per_step)``: the first row's ``elapsed_s`` (the run's
+    set-up, particle build included, and its first step), and the numpy array of the
+    steps after the first (the differences of ``elapsed_s``; empty for a run of one
+    step). A figure per step is the **mean** of ``per_step``; a median may be printed
+    beside it, never instead of it."""
+    import numpy as np
+
+    elapsed = np.asarray(stats[column], dtype=float)
+    if elapsed.size == 0:
+        raise ValueError("stats.csv has no rows: the run made no step")
+    return float(elapsed[0]), np.diff(elapsed)
+
+
+def step_figures(stats, prefix: str = "s_per_step") -> dict:
+    """``startup_s``, ``steps``, ``{prefix}_mean`` and ``{prefix}_median`` of
+    :func:`step_times` (nan where the run made one step only)."""
+    import numpy as np
+
+    startup, per_step = step_times(stats)
+    mean = float(per_step.mean()) if per_step.size else float("nan")
+    median = float(np.median(per_step)) if per_step.size else float("nan")
+    return {"startup_s": startup, "steps": int(per_step.size + 1),
+            f"{prefix}_mean": mean, f"{prefix}_median": median}
 
 
 #: terminal control sequences (CSI, OSC) and carriage returns: Open MPI gives ranks a

@@ -100,3 +100,37 @@ def test_memory_tank_has_about_the_particles_asked_for(tmp_path, target):
     assert sc.domain.dim == 3 and sc.domain.particle_size == d
     assert 0.6 * target < estimate_count(sc) < 1.6 * target
     assert [s.name for s in plan(sc)] == ["coupled"]
+
+
+def test_landslide_parts_keep_each_ranks_rows_of_one_phase_and_the_walls(tmp_path):
+    """jobs/bench_landslide.py: the solid-alone and fluid-alone checkpoints keep the rows
+    of that phase and the walls, each in its writing rank's segment (counts recounted),
+    and every other group (partitions, stage states) as it was."""
+    import h5py
+    import numpy as np
+
+    from bench_landslide import derive
+    from parsph.scene.materials import PHASE_FLUID, PHASE_SOLID, PHASE_WALL
+
+    src, dst = str(tmp_path / "checkpoint.h5"), str(tmp_path / "solid.h5")
+    phase = np.array([PHASE_SOLID, PHASE_FLUID, PHASE_WALL, PHASE_FLUID, PHASE_SOLID,
+                      PHASE_SOLID, PHASE_WALL])
+    with h5py.File(src, "w") as f:
+        f.attrs["step"] = 7
+        f.create_dataset("counts", data=np.array([4, 3]))
+        f.create_dataset("fields/phase", data=phase)
+        f.create_dataset("fields/id", data=np.arange(7) + 10)
+        f.create_dataset("fields/x", data=np.arange(14.0).reshape(7, 2))
+        f.create_dataset("rcb/cuts", data=np.array([0.5]))
+        f.create_dataset("stages/coupled/n_fluidised", data=2)
+    assert derive(src, dst, PHASE_SOLID) == 5
+    with h5py.File(dst, "r") as g:
+        assert g.attrs["step"] == 7
+        assert list(g["counts"][...]) == [2, 3]  # rank 0 kept rows 0, 2; rank 1 rows 4-6
+        assert list(g["fields/id"][...]) == [10, 12, 14, 15, 16]
+        assert np.array_equal(g["fields/x"][...], np.arange(14.0).reshape(7, 2)[[0, 2, 4, 5, 6]])
+        assert g["rcb/cuts"][0] == 0.5 and g["stages/coupled/n_fluidised"][()] == 2
+    assert derive(src, dst, PHASE_FLUID) == 4
+    with h5py.File(dst, "r") as g:
+        assert list(g["counts"][...]) == [3, 1]
+        assert list(g["fields/id"][...]) == [11, 12, 13, 16]
