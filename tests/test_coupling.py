@@ -581,15 +581,20 @@ def test_slope_failure_at_a_finer_resolution(comm, mpi_tmp_path):
 @pytest.mark.slow
 @pytest.mark.mpi(min_size=2)
 def test_slope_failure_converges(comm, mpi_tmp_path):
-    """``parsph study slope_failure``: its default sweep, d = 0.05, 0.035, 0.025 and
-    0.0177 m at the scene's internal length l = 0.1 m (docs/slope.md and
-    docs/accuracy.md have the table): every run passes the checks, and the run-out and
-    the fluidised area converge: they change by less than 5 % between the two finest
-    sizes, and by less than between the two before, or by less than the quantity
-    resolves (the finest d for the run-out) at both (the local rule's fluidised area
-    fell 14 %, 14 % then 30 % at these refinements, docs/regularisation.md). Records
-    ``slope_failure_d*`` per size and ``slope_failure_study`` (changes, observed orders,
-    Richardson values).
+    """``parsph study slope_failure --vary particle_size=...``: its default sweep, d =
+    0.05, 0.035, 0.025 and 0.0177 m, and one size finer, 0.0125 m, at the scene's
+    internal length l = 0.1 m (docs/slope.md and docs/accuracy.md have the table): every
+    run passes the checks, and the run-out and the fluidised area converge: they change
+    by less than 5 % between the two finest sizes, and by less than between the two
+    before, or by less than the quantity resolves (the finest d for the run-out) at both
+    (the local rule's fluidised area fell 14 %, 14 % then 30 % at 0.05-0.0177 m,
+    docs/regularisation.md). The finest size is there since the wall friction follows
+    the normal force over ``solid.friction_time`` (docs/loading.md): the fluidised area
+    at 0.035 m rose 12.6 % with it, the finer ones by 2.5 % and less, and between 0.025
+    and 0.0177 m the area changed by 6.3 %; at 0.0125 m it stays within 3.3 % of 0.0177
+    m's, but the run-out moves 8.7 % (0.974 -> 1.066 m) and the test fails on it
+    (2026-12-07): an open finding of the lagged friction (docs/slope.md). Records ``slope_failure_d*`` per size and ``slope_failure_study``
+    (changes, observed orders, Richardson values).
 
     The run-out is the deposit's: the distance along ``output.front_direction`` that 99 %
     of the soil's mass stays behind at 3 s (:func:`parsph.verify.coupling.run_out`). The
@@ -599,9 +604,10 @@ def test_slope_failure_converges(comm, mpi_tmp_path):
     the runs) for the docs."""
     from parsph.cli.study import study
 
-    rows = study(comm, "slope_failure", mpi_tmp_path)
+    sweep = [0.05, 0.035, 0.025, 0.0177, 0.0125]
+    rows = study(comm, "slope_failure", mpi_tmp_path, vary={"particle_size": sweep})
     sizes = [r["particle_size"] for r in rows]
-    assert sizes == [0.05, 0.035, 0.025, 0.0177]
+    assert sizes == sweep
     if comm.rank == 0:
         for i, (d, r) in enumerate(zip(sizes, rows)):
             out = os.path.join(mpi_tmp_path, "runs", f"{i:03d}")
@@ -634,11 +640,12 @@ def test_slope_failure_converges(comm, mpi_tmp_path):
             changes = [100 * abs(b - a) / abs(b) for a, b in zip(q, q[1:])]
             study_figures[f"{what}_changes_pc"] = changes
             # the two finest within 5 %, and closer than the two before them unless both
-            # changes are below what the quantity resolves (measured on 2 ranks: run-out
-            # 0.9941, 0.9965, 1.0005 m at the three finest, changes 0.0024 and 0.0040 m,
+            # changes are below what the quantity resolves (measured on 2 ranks before
+            # the lagged friction: run-out 0.9941, 0.9965, 1.0005 m at the three finest
+            # of the four sizes then, changes 0.0024 and 0.0040 m,
             # a quarter of the finest d; 1 against 2 ranks moved it 0.0006 m)
-            assert changes[2] < 5.0, (what, q)
-            steps = abs(q[3] - q[2]), abs(q[2] - q[1])
+            assert changes[-1] < 5.0, (what, q)
+            steps = abs(q[-1] - q[-2]), abs(q[-2] - q[-3])
             assert steps[0] < steps[1] or max(steps) < resolution[what], (what, q)
         record("slope_failure_study", study_figures, ranks=comm.size)
 
