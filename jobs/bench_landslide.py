@@ -43,7 +43,8 @@ from decomposition import world
 from decomposition.reduce import allgather, barrier, broadcast
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from benchlib import peak_rss_mib, record, reset_peak_rss, step_times  # noqa: E402
+from benchlib import (  # noqa: E402
+    peak_rss_mib, record, reset_peak_rss, step_figures, step_times)
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 SCENE = os.path.join(HERE, "scenes", "landslide_slab.toml")
@@ -115,22 +116,21 @@ def branch(comm, scene_path, restart, out, steps, sets, petsc_args, profile=0) -
     if comm.rank != 0:
         return None
     s = read_stats(os.path.join(out, "stats.csv"))
-    startup, step_s = step_times(s)  # the steps after the first (its row holds the set-up)
+    _, step_s = step_times(s)  # the steps after the first (its row holds the set-up)
     later = slice(1, None)
-    moving = np.asarray(s["n_solid"], float) + np.asarray(s["n_fluid"], float)
-    dt = np.asarray(s["dt"], float)
-    fig = {"steps": len(step_s) + 1, "startup_s": startup,
-           "s_per_step_mean": float(step_s.mean()),
-           "s_per_step_median": float(np.median(step_s)),
-           "simulated_s_per_wall_s": float(dt[later].sum() / step_s.sum()),
-           "dt_mean_s": float(dt[later].mean()),
-           "moving_particles": float(moving[later].mean()),
-           "solid_particles": float(np.asarray(s["n_solid"], float)[later].mean()),
-           "fluid_particles": float(np.asarray(s["n_fluid"], float)[later].mean()),
-           "moving_particle_steps_per_s_per_core": float(
-               moving[later].sum() / step_s.sum() / comm.size),
-           "particle_steps_per_s_per_core": float(
-               summary["particles"] * len(step_s) / step_s.sum() / comm.size)}
+    solid, fluid = (np.asarray(s[k], float)[later] for k in ("n_solid", "n_fluid"))
+    dt = np.asarray(s["dt"], float)[later]
+    wall = step_s.sum()
+    fig = step_figures(s)
+    fig.update({"simulated_s_per_wall_s": float(dt.sum() / wall),
+                "dt_mean_s": float(dt.mean()),
+                "moving_particles": float((solid + fluid).mean()),
+                "solid_particles": float(solid.mean()),
+                "fluid_particles": float(fluid.mean()),
+                "moving_particle_steps_per_s_per_core": float(
+                    (solid + fluid).sum() / wall / comm.size),
+                "particle_steps_per_s_per_core": float(
+                    summary["particles"] * len(step_s) / wall / comm.size)})
     for k in STAGES:
         if f"wall_s_{k}" in s:
             fig[f"s_per_step_{k}"] = float(np.asarray(s[f"wall_s_{k}"], float)[later].mean())
