@@ -40,7 +40,7 @@ from decomposition import world
 from decomposition.reduce import allgather
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from benchlib import record  # noqa: E402
+from benchlib import record, step_times  # noqa: E402
 
 PARTS = {"solid": ("wall_s_solid",), "fluid": ("wall_s_fluid",),
          "phase_change": ("wall_s_phase_change",),
@@ -62,15 +62,14 @@ def phases(stats) -> dict:
 
 def figures(stats, comm_size: int, wall_s: float, particles_moving) -> dict:
     """The per-phase figures of one run's ``stats.csv`` (rank 0)."""
-    elapsed = np.asarray(stats["elapsed_s"], float)
-    step_s = np.diff(np.concatenate([[elapsed[0] - (elapsed[1] - elapsed[0])
-                                      if len(elapsed) > 1 else 0.0], elapsed]))
-    step_s[0] = np.nan  # the first row's time includes the set-up: not a step's
+    startup, per_step = step_times(stats)
+    # the first row's time includes the set-up: not a step's
+    step_s = np.concatenate([[np.nan], per_step])
     moving = np.asarray(particles_moving, float)
-    out = {"steps": len(elapsed), "t_end_s": float(stats["time"][-1]), "wall_s": wall_s,
+    out = {"steps": len(step_s), "t_end_s": float(stats["time"][-1]), "wall_s": wall_s,
            "n_fluidised": int(float(stats["n_fluidised"][-1])),
            # set-up, the geostatic stage and the first step
-           "startup_s": float(elapsed[0])}
+           "startup_s": startup}
     for name, mask in phases(stats).items():
         mask = mask & np.isfinite(step_s)
         out[f"{name}_steps"] = int(mask.sum())
