@@ -588,12 +588,11 @@ def test_slope_failure_converges(comm, mpi_tmp_path):
     by less than 5 % between the two finest sizes, and by less than between the two
     before, or by less than the quantity resolves (the finest d for the run-out) at both
     (the local rule's fluidised area fell 14 %, 14 % then 30 % at 0.05-0.0177 m,
-    docs/regularisation.md). The finest size is there since the wall friction follows
-    the normal force over ``solid.friction_time`` (docs/loading.md): the fluidised area
-    at 0.035 m rose 12.6 % with it, the finer ones by 2.5 % and less, and between 0.025
-    and 0.0177 m the area changed by 6.3 %; at 0.0125 m it stays within 3.3 % of 0.0177
-    m's, but the run-out moves 8.7 % (0.974 -> 1.066 m) and the test fails on it
-    (2026-12-07): an open finding of the lagged friction (docs/slope.md). Records ``slope_failure_d*`` per size and ``slope_failure_study``
+    docs/regularisation.md). The finest size checks the default sweep's trend. It found
+    (2026-12-07) that the run-out moves by about 6 % from 0.0177 to 0.0125 m with the
+    bound of each step as with the lagged wall friction (1.000 -> 1.064 m at
+    ``solid.friction_time = 0``): the slide starts earlier at every refinement, an open
+    finding (docs/slope.md) on which this test fails. Records ``slope_failure_d*`` per size and ``slope_failure_study``
     (changes, observed orders, Richardson values).
 
     The run-out is the deposit's: the distance along ``output.front_direction`` that 99 %
@@ -635,10 +634,14 @@ def test_slope_failure_converges(comm, mpi_tmp_path):
         # spaced d apart at the deposit's tip, so it moves by up to about the finest d
         # between sizes without any trend; the fluidised area counts particles of d^2
         resolution = {"runout_m": sizes[-1], "fluidised": sizes[-1] ** 2}
-        for what in ("runout_m", "fluidised"):
-            q = [r["q_" + what] for r in rows]
-            changes = [100 * abs(b - a) / abs(b) for a, b in zip(q, q[1:])]
-            study_figures[f"{what}_changes_pc"] = changes
+        series = {what: [r["q_" + what] for r in rows] for what in ("runout_m", "fluidised")}
+        for what, q in series.items():
+            study_figures[f"{what}_changes_pc"] = [100 * abs(b - a) / abs(b)
+                                                   for a, b in zip(q, q[1:])]
+        # recorded before the checks: a failing run's figures are the finding
+        record("slope_failure_study", study_figures, ranks=comm.size)
+        for what, q in series.items():
+            changes = study_figures[f"{what}_changes_pc"]
             # the two finest within 5 %, and closer than the two before them unless both
             # changes are below what the quantity resolves (measured on 2 ranks before
             # the lagged friction: run-out 0.9941, 0.9965, 1.0005 m at the three finest
@@ -647,7 +650,6 @@ def test_slope_failure_converges(comm, mpi_tmp_path):
             assert changes[-1] < 5.0, (what, q)
             steps = abs(q[-1] - q[-2]), abs(q[-2] - q[-3])
             assert steps[0] < steps[1] or max(steps) < resolution[what], (what, q)
-        record("slope_failure_study", study_figures, ranks=comm.size)
 
 
 @pytest.mark.slow

@@ -31,6 +31,11 @@ class SolidNumerics:
     friction_time: float = spec(0.01, doc="time (s) over which the wall friction's Coulomb "
                                 "bound follows a particle's normal contact force (Prakash & "
                                 "Clifton 1993); 0 = at once (docs/loading.md)", ge=0.0)
+    friction_slip: float = spec(0.003, doc="slip (m) over which that bound follows the normal "
+                                "force when the particle slides: it relaxes at the rate "
+                                "1/friction_time + slip speed/friction_slip (the simplified "
+                                "Prakash & Clifton law of Cochard & Rice 2000); inf = the time "
+                                "alone (docs/loading.md)", gt=0.0, inf=True)
     max_substeps: int = spec(1, doc="coupled scenes with fluid: up to this many TLSPH sub-steps "
                              "per coupled step, which then takes the fluid's CFL step (eq. "
                              "(49)) instead of the solid's; 1 = one step for both (docs/coupling.md)",

@@ -16,7 +16,7 @@ from parsph.errors import SceneError
 
 
 def spec(default=MISSING, *, doc: str = "", gt=None, ge=None, lt=None, le=None,
-         choices=None, min_len=None, max_len=None):
+         choices=None, min_len=None, max_len=None, inf=False):
     """A dataclass field with validation metadata.
 
     Parameters
@@ -31,9 +31,11 @@ def spec(default=MISSING, *, doc: str = "", gt=None, ge=None, lt=None, le=None,
         Allowed values for strings.
     min_len, max_len
         Bounds on the length of a list.
+    inf
+        A number may be ``inf`` (TOML's ``inf``): a limit the key switches off at.
     """
     meta = dict(doc=doc, gt=gt, ge=ge, lt=lt, le=le, choices=choices,
-                min_len=min_len, max_len=max_len)
+                min_len=min_len, max_len=max_len, inf=inf)
     if default is MISSING:
         return field(metadata=meta)
     return field(default=default, metadata=meta)
@@ -53,7 +55,7 @@ def _check_number(value, path, source, meta, integer=False):
         _fail(path, source, f"expected {kind}, got {value!r}")
     if integer and not isinstance(value, int):
         _fail(path, source, f"expected a whole number, got {value!r}")
-    if not integer and not math.isfinite(value):
+    if not integer and not math.isfinite(value) and not (meta.get("inf") and value == math.inf):
         _fail(path, source, f"must be finite, got {value!r}")
     for name, op, text in (("gt", lambda a, b: a > b, ">"), ("ge", lambda a, b: a >= b, ">="),
                            ("lt", lambda a, b: a < b, "<"), ("le", lambda a, b: a <= b, "<=")):

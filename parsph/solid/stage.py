@@ -322,7 +322,8 @@ class TLSPH:
         """Collective: :func:`wall_contact` of the solids against the walls near them.
 
         The Coulomb bound of the friction follows each particle's normal contact force
-        over ``solid.friction_time`` (field ``contact_a``; 0: at once), the regularisation
+        over ``solid.friction_time`` near rest and over a slip ``solid.friction_slip``
+        when sliding (field ``contact_a``; friction_time 0: at once), the regularisation
         of :func:`wall_contact` (docs/loading.md). A run starts without that history: over
         its first t* the bound is the running mean of the normal force since t = 0 (a
         block launched along a rough floor at t = 0 had slid with too little friction for
@@ -353,7 +354,7 @@ class TLSPH:
             # exponential weights over t*; over a run's first t*, where the filter has no
             # history yet, the running mean since t = 0 (at once in the first step)
             fresh = max(-math.expm1(-dt / tau), dt / (ctx.time + dt))
-            lag = (p["contact_a"], 1.0 - fresh, dt)
+            lag = (p["contact_a"], 1.0 - fresh, dt, self.num.friction_slip)
         if len(lists["kept"]):
             count = wall_contact(lists["xall"], p["v"], lists["k"], lists["kept"],
                                  lists["wall"], lists["still"], lists["indptr"],
