@@ -193,7 +193,7 @@ def run_figures(out: str, direction=None) -> dict:
     time, wall seconds, fluidised count and volume and the time of the first, the farthest
     particle (``front``), the kinetic-energy peak and when it first falls below 1 % of it
     after the peak, from when every particle stays below 5 cm/s (``at_rest_from_s``), the
-    top speed and the energy balance's largest rise relative to the peak kinetic energy,
+    top speed (and the last step's, ``max_speed_end_m_s``) and the energy balance's largest rise relative to the peak kinetic energy,
     in a step and over a stretch (``energy_rise_max``, ``energy_gain_max``); from the first and the last frame the
     particles by phase (``*_start`` at the first) and, along ``direction`` (default: none), the run-out: the coordinate along it that
     99 % of the non-wall particles stay behind (``front`` is their largest)."""
@@ -208,7 +208,7 @@ def run_figures(out: str, direction=None) -> dict:
     fig = {"steps": len(t), "end_time_s": t[-1], "wall_s": s["elapsed_s"][-1],
            "ke_peak_j": ke[peak], "ke_peak_time_s": t[peak],
            "below_1pc_of_peak_from_s": t[peak + below[0]] if len(below) else float("nan"),
-           "max_speed_m_s": s["max_speed"].max()}
+           "max_speed_m_s": s["max_speed"].max(), "max_speed_end_m_s": s["max_speed"][-1]}
     for key, column in (("n_fluidised", "n_fluidised"), ("fluidised", "fluidised_volume"),
                         ("front_m", "front"), ("energy_rise_max", "energy_rise_max"),
                         ("energy_gain_max", "energy_gain_max")):
