@@ -592,8 +592,9 @@ def test_slope_failure_converges(comm, mpi_tmp_path):
     (2026-12-07) that the run-out moves by about 6 % from 0.0177 to 0.0125 m with the
     bound of each step as with the lagged wall friction (1.000 -> 1.064 m at
     ``solid.friction_time = 0``): the elastic drop at the start converges at about first
-    order, and the lattice's fill of the slope moves its mass by up to 1 % between sizes
-    (0.0177 m fills short), an open finding (docs/slope.md) on which this test fails. Records ``slope_failure_d*`` per size and ``slope_failure_study``
+    order, and where d does not divide the slope's 1 m height the filled slope stands up
+    to d/2 lower or higher (0.991 m at 0.0177 m), an open finding (docs/slope.md) on which
+    this test fails. Records ``slope_failure_d*`` per size and ``slope_failure_study``
     (changes, observed orders, Richardson values).
 
     The run-out is the deposit's: the distance along ``output.front_direction`` that 99 %
