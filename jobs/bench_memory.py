@@ -62,7 +62,8 @@ import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from benchlib import (  # noqa: E402
-    FLUIDS, peak_rss_mib, record, reset_peak_rss, run_benchmark, step_figures, worker_line)
+    FLUIDS, peak_rss_mib, record, reset_peak_rss, run_benchmark, step_figures, step_times,
+    worker_line)
 
 #: the tank: x in [0, 1] m, the slab y in [0, Y], z up; every span a whole number of d.
 #: The debris column (x 0.1-0.5, 0.4 high) rests against the block (x 0.5-1.0, 0.3 high):
@@ -217,10 +218,10 @@ def worker(args):
            "startup_s": fig["startup_s"], "s_per_step": fig["s_per_step_mean"],
            "s_per_step_median": fig["s_per_step_median"]}
     later = slice(1, None)
-    elapsed = col("elapsed_s")
-    wall = float(elapsed[-1] - elapsed[0])  # the steps after the first
+    _, per_step = step_times(stats)  # the steps after the first
+    wall = float(per_step.sum())
     moving = col("n_solid") + col("n_fluid")
-    out["particle_steps_per_s_per_core"] = n * (len(elapsed) - 1) / wall / comm.size \
+    out["particle_steps_per_s_per_core"] = n * per_step.size / wall / comm.size \
         if wall > 0 else float("nan")
     out["moving_particle_steps_per_s_per_core"] = float(moving[later].sum()) / wall / comm.size \
         if wall > 0 else float("nan")
@@ -235,7 +236,7 @@ def worker(args):
         if k in stats:
             out[k] = int(col(k)[-1])
     for k in ("n_coupled", "visc_iterations", "ppe_iterations"):
-        if k in stats and len(elapsed) > 1:
+        if k in stats and per_step.size:
             out[f"{k}_mean"] = float(np.nanmean(col(k)[later]))
     # memory: the whole process's peak RSS of every rank over all particles
     out["bytes_per_particle_peak_rss"] = sum(peaks) * 2.0 ** 20 / n
