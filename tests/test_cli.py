@@ -54,6 +54,19 @@ def test_check_prints_stages_counts_memory():
     assert "stages of one step" in r.stdout and "neighbours" in r.stdout
     assert "per rank: 0:" in r.stdout and "1:" in r.stdout and "MiB" in r.stdout
     assert r.stdout.count("stages of one step") == 1  # rank 0 only
+    assert "bodies as filled" in r.stdout and "warning" not in r.stdout
+
+
+def test_check_reports_a_body_the_lattice_does_not_meet():
+    """At d = 0.035 m the slope's 1 m stands 29 rows = 1.015 m tall: ``check`` prints the
+    body as filled beside its geometry and warns, naming a size that meets it (2 ranks: the
+    same report as on one)."""
+    r = parsph("check", "slope_failure", "--set", "domain.particle_size=0.035", ranks=2)
+    assert r.returncode == 0, r.stderr
+    assert "slope        polygon, 1810 particles: 2.485 x 1.015 m (geometry 2.5 x 1 m)" in r.stdout
+    assert "2.217 m^2 (geometry 2.2 m^2, +0.78 %)" in r.stdout
+    assert "warning: body 'slope' is not met by the lattice of d = 0.035 m" in r.stdout
+    assert "d = 0.03333 m meets every vertex" in r.stdout
 
 
 def test_run_and_plot_on_two_ranks(tmp_path):

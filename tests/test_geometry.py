@@ -3,7 +3,8 @@ import numpy as np
 import pytest
 
 from decomposition.reduce import global_sum
-from parsph.scene.geometry import estimate_count, generate, wall_layers
+from parsph.scene.geometry import (body_fill, estimate_count, fill_warnings, fitting_size,
+                                   generate, wall_layers)
 from parsph.scene.materials import PHASE_WALL
 from parsph.scene.loader import load_scene
 from parsph.errors import SceneError
@@ -158,6 +159,44 @@ def test_box_walls_continue_the_lattice_of_the_body_they_touch(comm, d):
     assert layers == int(0.15 / d + 1e-9)  # whole layers that fit: the wall's thickness
     if d == 0.05:
         assert np.isclose(floor[:, 1].max(), -0.025) and np.isclose(back[:, 0].min(), 2.525)
+
+
+@pytest.mark.parametrize("d, rows, fits", [(0.05, 20, 0.05), (0.0177, 56, 0.1 / 6),
+                                           (0.035, 29, 0.1 / 3), (0.02, 50, 0.02)])
+def test_body_fill_reports_the_height_the_lattice_gives(comm, d, rows, fits):
+    """The slope's 1 m stands as many rows tall as have their centre (k + 1/2) d under it
+    (docs/geometry.md): 56 rows = 0.991 m at d = 0.0177 m, 29 = 1.015 m at 0.035 m. The
+    report (the same on every rank) gives that height, the count and area, and the 2.2 m^2
+    of the polygon; a warning names the nearest size that meets every vertex when the
+    height is more than d/4 off, none where d divides the slope."""
+    scn = load_scene("slope_failure", [f"domain.particle_size={d}"])
+    fields = generate(comm, scn)
+    (fill,) = body_fill(comm, scn, fields)
+    n = global_sum(comm, int((fields["body"] == 0).sum()))
+    assert fill["particles"] == n and fill["measure"] == pytest.approx(n * d * d)
+    assert fill["hi"][1] - fill["lo"][1] == pytest.approx(rows * d)
+    assert fill["lo"][0] == pytest.approx(0.0) and fill["lo"][1] == pytest.approx(0.0)
+    assert fill["geometry_measure"] == pytest.approx(2.2)
+    assert tuple(fill["geometry_hi"]) == (2.5, 1.0)
+    assert fitting_size(scn.bodies[0], d) == pytest.approx(fits)
+    warnings = fill_warnings(scn, [fill])
+    off = abs(rows * d - 1.0) > 0.25 * d
+    assert len(warnings) == off
+    if off:
+        assert "'slope'" in warnings[0] and f"{rows * d:.4g} m" in warnings[0]
+        assert f"d = {fits:.4g} m meets every vertex" in warnings[0]
+
+
+def test_a_period_the_lattice_does_not_tile_is_warned():
+    """slope_failure_3d's slab is periodic over 0.25 m: at d = 0.04 m six layers leave the
+    particles either side of the periodic boundary 0.05 m apart; at 0.0417 m none."""
+    from parsph.scene.loader import geometry_warnings
+
+    (text,) = geometry_warnings(load_scene("slope_failure_3d", ["domain.particle_size=0.04"]))
+    assert "periodic along axis 1 over 0.25 m" in text and "0.05 m apart" in text
+    assert "0.04167 m" in text
+    assert geometry_warnings(load_scene("slope_failure_3d",
+                                        ["domain.particle_size=0.041666666666666664"])) == []
 
 
 @pytest.mark.mpi

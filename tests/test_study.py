@@ -118,6 +118,13 @@ def test_study_default_sweep_of_a_users_scene(comm, mpi_tmp_path):
 
 
 def test_every_builtin_scene_declares_its_sweep():
+    """Every built-in scene has a sweep of three or more sizes, coarse to fine, and each
+    size meets the scene's geometry: its boxes and periods (``geometry_warnings``) and the
+    extents of its polygons as filled (``fill_warnings``; the slope's 1 m stood 1.015 m
+    tall at d = 0.035 m, and the 3D slab's 0.25 m period left a 0.05 m seam at 0.04 m)."""
+    from mpi4py import MPI
+
+    from parsph.scene.geometry import body_fill, fill_warnings, generate
     from parsph.scene.loader import builtin_names, geometry_warnings, load_scene
 
     for name in builtin_names():
@@ -125,8 +132,11 @@ def test_every_builtin_scene_declares_its_sweep():
         assert len(sizes) >= 3, name  # Richardson needs three (slope_failure has four)
         assert list(sizes) == sorted(sizes, reverse=True), name  # coarse to fine
         for d in sizes:  # each size fits the scene's geometry
-            assert geometry_warnings(load_scene(name, [f"domain.particle_size={d!r}"])) == [], \
-                (name, d)
+            scn = load_scene(name, [f"domain.particle_size={d!r}"])
+            assert geometry_warnings(scn) == [], (name, d)
+            if any(b.shape in ("polygon", "extruded_polygon") for b in scn.bodies):
+                fills = body_fill(MPI.COMM_SELF, scn, generate(MPI.COMM_SELF, scn))
+                assert fill_warnings(scn, fills) == [], (name, d)
 
 
 @pytest.mark.parametrize("sizes, match", [("[0.01, 0.02]", "coarse to fine"),
@@ -139,3 +149,29 @@ def test_bad_sweep_names_the_key(sizes, match):
     with pytest.raises(SceneError, match=match) as info:
         load_scene("hydrostatic", [f"study.particle_sizes={sizes}"])
     assert "study.particle_sizes" in str(info.value)
+
+
+def test_slope_scatter_job_measures_and_resumes(comm, mpi_tmp_path, capsys):
+    """jobs/slope_scatter.py (docs/slope.md): the scene as it is and one run per perturbed
+    value at each size, the landslide's quantities of each and their largest deviation
+    from the mean; a second call measures the finished runs without running them again;
+    a malformed --perturb is refused before any run."""
+    from jobs import slope_scatter
+
+    out = os.path.join(mpi_tmp_path, "scatter")
+    args = ["--d", "0.1", "--perturb", "solid.cfl=0.45", "--set", "run.end_time=0.3",
+            "--out", out]
+    assert slope_scatter.main(args) == 0
+    base = os.path.join(out, "d0.1", "base", "stats.csv")
+    assert os.path.exists(os.path.join(out, "d0.1", "solid.cfl=0.45", "stats.csv"))
+    first = capsys.readouterr().out
+    stamp = os.path.getmtime(base)
+    assert slope_scatter.main(args) == 0
+    assert os.path.getmtime(base) == stamp  # measured, not run again
+    if comm.rank == 0:
+        line = [s for s in first.splitlines() if s.startswith("figures slope_failure_scatter")]
+        assert line and "runs = ['base', 'solid.cfl=0.45']" in line[0]
+        runout = [s for s in first.splitlines() if s.startswith("d = 0.1 m: runout_m mean")]
+        assert runout and "over 2 runs" in runout[0]
+    with pytest.raises(SystemExit, match="--perturb 'solid.cfl'"):
+        slope_scatter.main(["--perturb", "solid.cfl", "--out", out])

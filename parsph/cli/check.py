@@ -8,7 +8,7 @@ from decomposition.exchange import migrate
 from decomposition.partition import RCB
 from decomposition.reduce import gather_to_root, global_sum
 from parsph.scene.budget import check_budget
-from parsph.scene.geometry import generate
+from parsph.scene.geometry import body_fill, fill_warnings, generate
 from parsph.core.kernel import smoothing_length, support_radius
 from parsph.scene.materials import PHASE_FLUID, PHASE_SOLID, PHASE_WALL
 from parsph.scene.params_probes import fields_of
@@ -31,6 +31,7 @@ def check(comm, scene) -> str:
     counts = global_sum(comm, np.array([(phase == k).sum() for k in
                                         (PHASE_SOLID, PHASE_FLUID, PHASE_WALL)], dtype=np.int64))
     per_rank = gather_to_root(comm, len(phase))
+    fills = body_fill(comm, scene, fields)
     if comm.rank != 0:
         return ""
     total = int(counts.sum())
@@ -57,11 +58,38 @@ def check(comm, scene) -> str:
         f"({est['bytes_per_particle']} B per particle)"
         + (f"; this node has {est['node_memory'] / 2**30:.1f} GiB" if est["node_memory"] else ""),
     ]
+    lines += _fill_lines(scene, fills)
     lines += _length_lines(scene)
     lines += _probe_lines(scene)
-    lines += [f"warning: {text}" for text in geometry_warnings(scene)]
+    lines += [f"warning: {text}" for text in geometry_warnings(scene) + fill_warnings(scene, fills)]
     return "\n".join(lines)
 
+
+
+def _fill_lines(scene, fills) -> list[str]:
+    """One line per body: its particles and the extent and measure its lattice fills,
+    beside its geometry's (docs/geometry.md): a body the lattice meets short or long is
+    driven differently at each d (docs/slope.md)."""
+    if not fills:
+        return []
+    dim = scene.domain.dim
+    unit = "m^2" if dim == 2 else "m^3"
+    out = ["bodies as filled (lattice of d; geometry as written):"]
+    for f in fills:
+        if f["lo"] is None:
+            out.append(f"  {f['name']:12s} {f['shape']}, no particles at this d")
+            continue
+        span = " x ".join(f"{h - l:.4g}" for l, h in zip(f["lo"], f["hi"]))
+        text = f"  {f['name']:12s} {f['shape']}, {f['particles']} particles: {span} m"
+        if f["geometry_lo"] is not None:
+            gspan = " x ".join(f"{h - l:.4g}" for l, h in zip(f["geometry_lo"], f["geometry_hi"]))
+            text += f" (geometry {gspan} m)"
+        text += f", {f['measure']:.4g} {unit}"
+        if f["geometry_measure"]:
+            g = f["geometry_measure"]
+            text += f" (geometry {g:.4g} {unit}, {100 * (f['measure'] - g) / g:+.2f} %)"
+        out.append(text)
+    return out
 
 
 def _length_lines(scene) -> list[str]:

@@ -45,7 +45,7 @@ def _parser() -> _Parser:
                    "--out NEW branch it into a new run directory (DIR left untouched)")
     r.add_argument("--no-progress", action="store_true", help="no progress bar")
     r.add_argument("-v", "--verbose", action="store_true", help="debug logging on rank 0")
-    c = sub.add_parser("check", help="print stages, particle counts per rank and memory")
+    c = sub.add_parser("check", help="print stages, particle counts per rank, memory and each body as filled")
     c.add_argument("scene", help="built-in scene name or TOML file")
     c.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE")
     sub.add_parser("scenes", help="list the built-in scenes")

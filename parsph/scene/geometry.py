@@ -343,3 +343,118 @@ def generate(comm, scene: Scene) -> dict:
             shape = (0, dim) if k in ("x", "v") else (0,)
             fields[k] = np.zeros(shape, dtype=dtypes.get(k, np.float64))
     return fields
+
+
+def _geometry_box(scene: Scene, item):
+    """The bounding box (lo, hi) of a body's geometry as written, and its measure (area in
+    2D, volume in 3D) where the shape gives it in closed form (else None)."""
+    shape = item.shape
+    if shape == "box":
+        lo, hi = np.asarray(item.lo, dtype=float), np.asarray(item.hi, dtype=float)
+        return lo, hi, float(np.prod(hi - lo))
+    if shape in ("polygon", "extruded_polygon"):
+        verts = np.array(item.vertices, dtype=float)
+        x, y = verts[:, 0], verts[:, 1]
+        area = 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+        lo, hi = verts.min(axis=0), verts.max(axis=0)
+        if shape == "polygon":
+            return lo, hi, area
+        y0, y1 = item.extent
+        return (np.array([lo[0], y0, lo[1]]), np.array([hi[0], y1, hi[1]]),
+                area * (y1 - y0))
+    if shape == "heightmap":
+        lat = _lattice(scene, item, False)
+        grid = scene.data[item.top]
+        (x0, x1), (y0, y1) = grid.extent
+        return (np.array([x0, y0, lat.origin[2]]),
+                np.array([x1, y1, float(np.nanmax(grid.z))]), None)
+    if shape == "mesh":
+        mesh = scene.data[f"mesh:{item.name}"]
+        return np.asarray(mesh.lo, dtype=float), np.asarray(mesh.hi, dtype=float), None
+    return None, None, None
+
+
+def fitting_size(item, d: float, tries: int = 64):
+    """The particle size nearest ``d`` whose lattice meets every vertex coordinate of a
+    polygon body (each offset from the lower corner a whole number of sizes), or None.
+
+    A polygon's lattice starts at its lower corner and keeps the centres ``(k + 1/2) d``
+    inside it, so an edge at an offset that is not a multiple of d is met up to d/2 short
+    or long (the slope's 1 m at d = 0.0177 m stands 0.991 m tall, docs/slope.md)."""
+    if item.shape not in ("polygon", "extruded_polygon"):
+        return None
+    verts = np.array(item.vertices, dtype=float)
+    offsets = verts - verts.min(axis=0)
+    if item.shape == "extruded_polygon":  # and its extent along y
+        offsets = np.append(offsets, item.extent[1] - item.extent[0])
+    offsets = np.unique(np.round(offsets, 12))
+    offsets = offsets[offsets > 0]
+    if not len(offsets):
+        return None
+    span = float(offsets.max())
+    n0 = max(1, int(round(span / d)))
+    for step in range(tries):
+        for n in sorted({n0 - step, n0 + step}):
+            if n < 1:
+                continue
+            size = span / n
+            k = offsets / size
+            if np.all(np.abs(k - np.round(k)) < 1e-6):
+                return size
+    return None
+
+
+def body_fill(comm, scene: Scene, fields: dict) -> list[dict]:
+    """Collective: how the lattice fills each body, beside its geometry as written.
+
+    ``fields`` are :func:`generate`'s (any distribution over the ranks). Per body: the
+    particle count, the filled extent (the outermost centres -/+ d/2 per axis), the filled
+    measure ``n d^dim``, and the geometry's bounding box and measure (None where the shape
+    has no closed form: heightmaps, meshes). The same on every rank."""
+    from decomposition.reduce import global_reduce
+
+    d, dim = scene.domain.particle_size, scene.domain.dim
+    nb = len(scene.bodies)
+    counts, maxs, mins = [], [], []
+    for b in range(nb):
+        x = fields["x"][fields["body"] == b]
+        counts.append(float(len(x)))
+        maxs += list(x.max(axis=0)) if len(x) else [-np.inf] * dim
+        mins += list(x.min(axis=0)) if len(x) else [np.inf] * dim
+    counts, maxs, mins = global_reduce(comm, counts, maxs, mins)
+    out = []
+    for b, item in enumerate(scene.bodies):
+        glo, ghi, measure = _geometry_box(scene, item)
+        n = int(counts[b])
+        lo = np.array(mins[b * dim:(b + 1) * dim]) - 0.5 * d
+        hi = np.array(maxs[b * dim:(b + 1) * dim]) + 0.5 * d
+        out.append({"name": item.name, "shape": item.shape, "particles": n,
+                    "lo": lo if n else None, "hi": hi if n else None,
+                    "measure": n * d ** dim, "geometry_lo": glo, "geometry_hi": ghi,
+                    "geometry_measure": measure})
+    return out
+
+
+def fill_warnings(scene: Scene, fills: list[dict]) -> list[str]:
+    """Warnings for polygon bodies the lattice stands more than d/4 short of or beyond on
+    an axis (boxes have theirs in :func:`parsph.scene.loader.geometry_warnings`): a slope
+    whose height the lattice does not meet is driven by a different height at each d, which
+    a convergence study then reads as the method's error (docs/slope.md)."""
+    d = scene.domain.particle_size
+    out = []
+    for fill, item in zip(fills, scene.bodies):
+        if item.shape not in ("polygon", "extruded_polygon") or fill["lo"] is None:
+            continue
+        ext = fill["hi"] - fill["lo"]
+        gext = fill["geometry_hi"] - fill["geometry_lo"]
+        axes = np.flatnonzero(np.abs(ext - gext) > 0.25 * d)
+        if not len(axes):
+            continue
+        size = fitting_size(item, d)
+        hint = (f"d = {size:.4g} m meets every vertex" if size else
+                "no size near d meets every vertex; choose d dividing its extents")
+        spans = "; ".join(f"along axis {a} it spans {gext[a]:g} m, filled {ext[a]:.4g} m "
+                          f"({100 * (ext[a] - gext[a]) / gext[a]:+.1f} %)" for a in axes)
+        out.append(f"body '{fill['name']}' is not met by the lattice of d = {d:g} m: "
+                   f"{spans}; the body as filled changes with d (docs/geometry.md); {hint}")
+    return out

@@ -404,6 +404,9 @@ def geometry_warnings(scn: Scene) -> list[str]:
       contact normal are weak, and a particle can pass through it (a box floor of 0.15 m
       at d = 0.1 m, 2h = 0.24 m, let the slope fall through). Tanks and polygons get
       enough layers by default (``layers = 0``).
+    - A periodic axis whose period is not a whole number of particle sizes: the particles
+      either side of the periodic boundary stand further apart than d (``slope_failure_3d``
+      at d = 0.04 m: 6 layers across its 0.25 m, a 0.05 m seam).
     - A box body whose extent is not a whole number of particle sizes: the lattice
       leaves the remainder empty at its upper side (at d = 0.0667 m the 1 m
       ``hydrostatic`` column leaves a 0.066 m gap at the right wall, and the water
@@ -421,6 +424,15 @@ def geometry_warnings(scn: Scene) -> list[str]:
                 out.append(f"wall '{wall.name}' is {thick:g} m thick, less than the kernel "
                            f"support 2h = {reach:g} m at d = {d:g} m: particles may pass "
                            f"through it; make it at least {reach:g} m thick")
+    span = np.array(scn.domain.hi) - np.array(scn.domain.lo)
+    for axis in np.flatnonzero(np.array(scn.domain.periodic, dtype=bool)):
+        seam = span[axis] - np.floor(span[axis] / d + 1e-9) * d
+        if min(seam, d - seam) > 1e-6 * d:
+            out.append(f"the domain is periodic along axis {axis} over {span[axis]:g} m, not a "
+                       f"whole number of particles of d = {d:g} m: the particles either side "
+                       f"of the periodic boundary stand {d + seam:.3g} m apart instead of d; "
+                       f"choose d = "
+                       f"{span[axis]:g} / N (e.g. {span[axis] / max(1, round(span[axis] / d)):.4g} m)")
     for body in scn.bodies:
         if body.shape == "box":
             extent = np.array(body.hi) - np.array(body.lo)

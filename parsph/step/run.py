@@ -37,7 +37,7 @@ from parsph.core.kernel import smoothing_length, support_radius
 from parsph.core.particles import ParticleSet
 from parsph.errors import ParsphError
 from parsph.scene.budget import check_budget
-from parsph.scene.geometry import generate
+from parsph.scene.geometry import body_fill, fill_warnings, generate
 from parsph.step.pipeline import layout, needs_petsc, plan, uses_petsc
 from parsph.step.refresh import check_state, refresh, timed
 from parsph.step.stats import EnergyBalance, kinetic_energy, stats_columns, stats_row
@@ -180,6 +180,9 @@ def _build(scene, out, comm, petsc_args, restart):
     if ck is None:
         fields = generate(comm, scene)
         fields["X"] = fields["x"].copy()  # reference configuration (section 3)
+        for text in fill_warnings(scene, body_fill(comm, scene, fields)):
+            if comm.rank == 0:
+                log.warning(text)
     else:
         fields = ck.fields
     particles = ParticleSet(dim, fields)
