@@ -10,7 +10,9 @@ and ``solid.friction_time`` = 0.009, 0.011 about its 0.01), measures the scene's
 quantities of every run (:func:`parsph.verify.coupling.landslide`: the run-out that 99 %
 of the mass stays behind, the fluidised area, the time to rest) and prints, per size and
 quantity, the mean and the largest deviation from it, relative, and the figures record
-``slope_failure_scatter`` (written to ``$PARSPH_FIGURES`` when set; ``python
+``slope_failure_scatter`` (per size, in the order of ``--d``: ``runout_m_mean``,
+``runout_m_deviation_pc``, the runs' values ``runout_m_values_0``, ...; over the sizes,
+``runout_m_scatter_pc``; the same for ``fluidised`` and ``time_to_rest_s``) (written to ``$PARSPH_FIGURES`` when set; ``python
 jobs/figures.py --take DIR`` takes it into docs/figures). The study's slow test asks of
 its resolved sizes that they lie within twice the largest of these deviations.
 
@@ -82,7 +84,9 @@ def main(argv=None) -> int:
     runs = [("base", None)] + _perturbations(args.perturb or PERTURB)
     figures, rows = {"d_m": sizes}, []
     worst = {q: 0.0 for q in QUANTITIES}
-    for d in sizes:
+    for q in QUANTITIES:  # per size, in the order of --d (a figure's key holds no dot)
+        figures[f"{q}_mean"], figures[f"{q}_deviation_pc"] = [], []
+    for i, d in enumerate(sizes):
         values = {q: [] for q in QUANTITIES}
         for key, value in runs:
             sets = [f"domain.particle_size={d!r}", "output.progress=false", *args.set]
@@ -109,9 +113,9 @@ def main(argv=None) -> int:
                 spread = float(np.abs(v - mean).max())
                 dev = spread / abs(mean) if mean else (0.0 if spread == 0.0 else np.inf)
                 worst[k] = max(worst[k], dev)
-                figures[f"d{d:.4g}_{k}"] = [float(x) for x in v]
-                figures[f"d{d:.4g}_{k}_mean"] = mean
-                figures[f"d{d:.4g}_{k}_deviation_pc"] = 100 * dev
+                figures[f"{k}_values_{i}"] = [float(x) for x in v]
+                figures[f"{k}_mean"].append(mean)
+                figures[f"{k}_deviation_pc"].append(100 * dev)
                 print(f"d = {d:.4g} m: {k} mean {mean:.4f}, largest deviation "
                       f"{100 * dev:.2f} % over {len(v)} runs", flush=True)
     if comm.rank != 0:
