@@ -190,7 +190,7 @@ def test_body_fill_reports_the_height_the_lattice_gives(comm, d, rows, fits):
 def test_a_period_the_lattice_does_not_tile_is_warned():
     """slope_failure_3d's slab is periodic over 0.25 m: at d = 0.04 m six layers leave the
     particles either side of the periodic boundary 0.05 m apart; at 0.0417 m none."""
-    from parsph.scene.loader import geometry_warnings
+    from parsph.scene.geometry import geometry_warnings
 
     (text,) = geometry_warnings(load_scene("slope_failure_3d", ["domain.particle_size=0.04"]))
     assert "periodic along axis 1 over 0.25 m" in text and "0.05 m apart" in text

@@ -169,7 +169,7 @@ def test_scene_with_solid_and_fluid_is_coupled(tmp_path):
 def test_geometry_warnings_name_thin_walls_and_misfit_bodies():
     """A wall thinner than 2h and a box body that is not a whole number of particles get
     a warning naming them and the fix; the built-in scenes get none."""
-    from parsph.scene.loader import geometry_warnings
+    from parsph.scene.geometry import geometry_warnings
 
     for name in builtin_names():
         assert geometry_warnings(load_scene(name)) == [], name

@@ -124,8 +124,8 @@ def test_every_builtin_scene_declares_its_sweep():
     tall at d = 0.035 m, and the 3D slab's 0.25 m period left a 0.05 m seam at 0.04 m)."""
     from mpi4py import MPI
 
-    from parsph.scene.geometry import body_fill, fill_warnings, generate
-    from parsph.scene.loader import builtin_names, geometry_warnings, load_scene
+    from parsph.scene.geometry import body_fill, fill_warnings, generate, geometry_warnings
+    from parsph.scene.loader import builtin_names, load_scene
 
     for name in builtin_names():
         sizes = load_scene(name).study.particle_sizes

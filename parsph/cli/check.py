@@ -8,13 +8,12 @@ from decomposition.exchange import migrate
 from decomposition.partition import RCB
 from decomposition.reduce import gather_to_root, global_sum
 from parsph.scene.budget import check_budget
-from parsph.scene.geometry import body_fill, fill_warnings, generate
+from parsph.scene.geometry import body_fill, fill_warnings, generate, geometry_warnings
 from parsph.core.kernel import smoothing_length, support_radius
 from parsph.scene.materials import PHASE_FLUID, PHASE_SOLID, PHASE_WALL
 from parsph.scene.params_probes import fields_of
 from parsph.scene.params_solid import geostatic_procedure
 from parsph.step.pipeline import INFRASTRUCTURE, plan
-from parsph.scene.loader import geometry_warnings
 
 
 def check(comm, scene) -> str:

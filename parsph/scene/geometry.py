@@ -437,7 +437,7 @@ def body_fill(comm, scene: Scene, fields: dict) -> list[dict]:
 
 def fill_warnings(scene: Scene, fills: list[dict]) -> list[str]:
     """Warnings for polygon bodies the lattice stands more than d/4 short of or beyond on
-    an axis (boxes have theirs in :func:`parsph.scene.loader.geometry_warnings`): a slope
+    an axis (boxes have theirs in :func:`geometry_warnings`): a slope
     whose height the lattice does not meet is driven by a different height at each d, which
     a convergence study then reads as the method's error (docs/slope.md)."""
     d = scene.domain.particle_size
@@ -457,4 +457,53 @@ def fill_warnings(scene: Scene, fills: list[dict]) -> list[str]:
                           f"({100 * (ext[a] - gext[a]) / gext[a]:+.1f} %)" for a in axes)
         out.append(f"body '{fill['name']}' is not met by the lattice of d = {d:g} m: "
                    f"{spans}; the body as filled changes with d (docs/geometry.md); {hint}")
+    return out
+
+
+def geometry_warnings(scn: Scene) -> list[str]:
+    """Warnings about a geometry the particle size does not resolve as written.
+
+    - A box wall thinner than the kernel support 2h on its thinnest axis: a particle
+      next to it sees an incomplete wall, the fluid's wall pressure and the solid's
+      contact normal are weak, and a particle can pass through it (a box floor of 0.15 m
+      at d = 0.1 m, 2h = 0.24 m, let the slope fall through). Tanks and polygons get
+      enough layers by default (``layers = 0``).
+    - A periodic axis whose period is not a whole number of particle sizes: the particles
+      either side of the periodic boundary stand further apart than d (``slope_failure_3d``
+      at d = 0.04 m: 6 layers across its 0.25 m, a 0.05 m seam).
+    - A box body whose extent is not a whole number of particle sizes: the lattice
+      leaves the remainder empty at its upper side (at d = 0.0667 m the 1 m
+      ``hydrostatic`` column leaves a 0.066 m gap at the right wall, and the water
+      collapses into it instead of resting).
+    """
+    from parsph.core.kernel import smoothing_length, support_radius
+
+    d = scn.domain.particle_size
+    reach = support_radius(smoothing_length(d))
+    out = []
+    for wall in scn.walls:
+        if wall.shape == "box":
+            thick = float(np.min(np.array(wall.hi) - np.array(wall.lo)))
+            if thick < reach - 1e-9:
+                out.append(f"wall '{wall.name}' is {thick:g} m thick, less than the kernel "
+                           f"support 2h = {reach:g} m at d = {d:g} m: particles may pass "
+                           f"through it; make it at least {reach:g} m thick")
+    span = np.array(scn.domain.hi) - np.array(scn.domain.lo)
+    for axis in np.flatnonzero(np.array(scn.domain.periodic, dtype=bool)):
+        seam = span[axis] - np.floor(span[axis] / d + 1e-9) * d
+        if min(seam, d - seam) > 1e-6 * d:
+            out.append(f"the domain is periodic along axis {axis} over {span[axis]:g} m, not a "
+                       f"whole number of particles of d = {d:g} m: the particles either side "
+                       f"of the periodic boundary stand {d + seam:.3g} m apart instead of d; "
+                       f"choose d = "
+                       f"{span[axis]:g} / N (e.g. {span[axis] / max(1, round(span[axis] / d)):.4g} m)")
+    for body in scn.bodies:
+        if body.shape == "box":
+            extent = np.array(body.hi) - np.array(body.lo)
+            gap = extent - np.floor(extent / d + 1e-9) * d
+            for axis in np.flatnonzero(gap > 0.25 * d):
+                out.append(f"body '{body.name}' spans {extent[axis]:g} m along axis {axis}, "
+                           f"not a whole number of particles of d = {d:g} m: the lattice "
+                           f"leaves {gap[axis]:.3g} m empty at its upper side (a fluid "
+                           f"collapses into such a gap); choose d = extent / N")
     return out

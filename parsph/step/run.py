@@ -37,7 +37,7 @@ from parsph.core.kernel import smoothing_length, support_radius
 from parsph.core.particles import ParticleSet
 from parsph.errors import ParsphError
 from parsph.scene.budget import check_budget
-from parsph.scene.geometry import body_fill, fill_warnings, generate
+from parsph.scene.geometry import body_fill, fill_warnings, generate, geometry_warnings
 from parsph.step.pipeline import layout, needs_petsc, plan, uses_petsc
 from parsph.step.refresh import check_state, refresh, timed
 from parsph.step.stats import EnergyBalance, kinetic_energy, stats_columns, stats_row
@@ -162,8 +162,6 @@ def _build(scene, out, comm, petsc_args, restart):
     """Everything before the first step: checks, particles (generated or read from a
     checkpoint), partition, halo, neighbours and the scene's stages, set up."""
     from parsph.step import checkpoint
-
-    from parsph.scene.loader import geometry_warnings
 
     specs = plan(scene)
     check_budget(comm, scene, specs)
