@@ -12,9 +12,10 @@ of the mass stays behind, the fluidised area, the time to rest) and prints, per 
 quantity, the mean and the largest deviation from it, relative, and the figures record
 ``slope_failure_scatter`` (per size, in the order of ``--d``: ``runout_m_mean``,
 ``runout_m_deviation_pc``, the runs' values ``runout_m_values_0``, ...; over the sizes,
-``runout_m_scatter_pc``; the same for ``fluidised`` and ``time_to_rest_s``) (written to ``$PARSPH_FIGURES`` when set; ``python
-jobs/figures.py --take DIR`` takes it into docs/figures). The study's slow test asks of
-its resolved sizes that they lie within twice the largest of these deviations.
+``runout_m_scatter_pc``; the same for ``fluidised`` and ``time_to_rest_s``), written to
+``$PARSPH_FIGURES`` when set (``python jobs/figures.py --take DIR`` takes it into
+docs/figures). The study's slow test asks of its resolved sizes that they lie within
+twice the largest of these deviations.
 
 A run whose directory already holds a finished run (its stats.csv reaches the end time)
 is measured, not run again: an interrupted job resumes.
@@ -82,15 +83,15 @@ def main(argv=None) -> int:
 
     sizes = [float(v) for v in args.d.split(",") if v.strip()]
     runs = [("base", None)] + _perturbations(args.perturb or PERTURB)
-    figures, rows = {"d_m": sizes}, []
+    names = ["base" if key == "base" else f"{key}={value:g}" for key, value in runs]
+    figures = {"d_m": sizes, "runs": names}
     worst = {q: 0.0 for q in QUANTITIES}
     for q in QUANTITIES:  # per size, in the order of --d (a figure's key holds no dot)
         figures[f"{q}_mean"], figures[f"{q}_deviation_pc"] = [], []
     for i, d in enumerate(sizes):
         values = {q: [] for q in QUANTITIES}
-        for key, value in runs:
+        for (key, value), name in zip(runs, names):
             sets = [f"domain.particle_size={d!r}", "output.progress=false", *args.set]
-            name = "base" if key == "base" else f"{key}={value:g}"
             if key != "base":
                 sets.append(f"{key}={value!r}")
             scene = load_scene(args.scene, sets)
@@ -102,7 +103,6 @@ def main(argv=None) -> int:
                 q = landslide(scene, out)
                 for k in QUANTITIES:
                     values[k].append(float(q[k]))
-                rows.append((d, name, *(q[k] for k in QUANTITIES)))
                 print(f"d = {d:.4g} m, {name}: run-out {q['runout_m']:.4f} m, fluidised "
                       f"{q['fluidised']:.5f}, at rest from {q['time_to_rest_s']:.2f} s",
                       flush=True)
@@ -120,7 +120,6 @@ def main(argv=None) -> int:
                       f"{100 * dev:.2f} % over {len(v)} runs", flush=True)
     if comm.rank != 0:
         return 0
-    figures["runs"] = [r[1] for r in rows[:len(runs)]]
     for k in QUANTITIES:
         figures[f"{k}_scatter_pc"] = 100 * worst[k]
         print(f"scatter of {k}: {100 * worst[k]:.2f} % (the largest deviation from the mean "
