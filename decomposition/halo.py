@@ -90,6 +90,43 @@ class Halo:
         self._send_ranks = [r for r in np.nonzero(send_counts)[0].tolist() if r != me]
         self._recv_ranks = [r for r in np.nonzero(recv_counts)[0].tolist() if r != me]
 
+    def without(self, keep) -> tuple["Halo", np.ndarray]:
+        """Collective: this pattern with the owned rows where ``keep`` is False left out,
+        and which of the halo rows stay (one exchange of the flags).
+
+        The rows that stay keep their order on both sides: an owned row becomes row
+        ``cumsum(keep) - 1``, and the halo rows that stay are the old halo's in its order,
+        so fields exchanged with the new pattern equal the old exchange's rows where the
+        returned flags are True. What :meth:`build` would give for the rows that stay,
+        without its geometric search (a solid's reference halo after a phase change,
+        :meth:`parsph.coupling.view.SolidView.without`).
+
+        Parameters
+        ----------
+        keep : array_like of bool, shape (n_owned,)
+
+        Returns
+        -------
+        halo : Halo
+        kept : ndarray of bool, shape (n_halo,)
+            Which rows of the old halo are in the new one.
+        """
+        keep = np.asarray(keep, dtype=bool).reshape(-1)
+        if keep.shape[0] != self.n_owned:
+            raise ValueError(f"Halo.without: {keep.shape[0]} flags for {self.n_owned} owned "
+                             f"rows; pass one per owned row")
+        size = self.comm.size
+        kept = self.exchange({"keep": keep.view(np.uint8)}, shift_fields=())["keep"] != 0
+        renumber = np.cumsum(keep) - 1
+        sent = keep[self.send_index]
+        send_counts = np.bincount(np.repeat(np.arange(size), self.send_counts)[sent],
+                                  minlength=size).astype(np.int64)
+        recv_counts = np.bincount(np.repeat(np.arange(size), self.recv_counts)[kept],
+                                  minlength=size).astype(np.int64)
+        shift = None if self.send_shift is None else self.send_shift[sent]
+        return Halo(self.comm, renumber[self.send_index[sent]].astype(np.int64), send_counts,
+                    shift, int(keep.sum()), recv_counts), kept
+
     # ------------------------------------------------------------- builders
     @classmethod
     def from_send_lists(cls, comm, send_index, send_shift=None, n_owned=None) -> "Halo":

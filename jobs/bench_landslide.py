@@ -205,7 +205,50 @@ def main():
                    comm.size, {"coupled_over_parts_per_step": per_step,
                                "coupled_over_parts_per_simulated_s": wc / (ws + wf),
                                "solid_substeps_mean": k})
+            write_record(comm.size, figs, per_step, wc / (ws + wf))
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+def write_record(ranks, figs, over_parts, over_parts_simulated) -> None:
+    """Rank 0: the figures record ``bench_landslide`` (``jobs/figures.py``; written where
+    ``$PARSPH_FIGURES`` says): this rank count's figures as ``r{ranks}_*``, merged with
+    the other rank count's of the record there, and ``speedup_1_to_2`` when both are in
+    it from the same day."""
+    import datetime
+    import json
+
+    from figures import record
+
+    c = figs["coupled"]
+    mine = {"s_per_step": c["s_per_step_mean"], "s_per_step_median": c["s_per_step_median"],
+            "moving_psps_per_core": c["moving_particle_steps_per_s_per_core"],
+            "over_parts": over_parts, "over_parts_simulated": over_parts_simulated,
+            "bytes_per_particle": c["bytes_per_particle"],
+            "solid_alone_s_per_step": figs["solid_alone"]["s_per_step_mean"],
+            "fluid_alone_s_per_step": figs["fluid_alone"]["s_per_step_mean"],
+            "date": datetime.date.today().isoformat()}
+    mine.update({f"s_per_step_{k}": c[f"s_per_step_{k}"] for k in STAGES
+                 if f"s_per_step_{k}" in c})
+    mine.update({k: v for k, v in c.items() if k.startswith("peak_rss_mib_rank")})
+    folder = os.environ.get("PARSPH_FIGURES")
+    old, old_ranks = {}, 0
+    path = os.path.join(folder, "bench_landslide.json") if folder else ""
+    if path and os.path.isfile(path):
+        with open(path, encoding="utf-8") as fh:
+            rec = json.load(fh)
+        old, old_ranks = rec["figures"], rec["ranks"]
+    fig = {k: v for k, v in old.items() if not k.startswith(f"r{ranks}_")}
+    fig.update({f"r{ranks}_{k}": v for k, v in mine.items()})
+    fig.update(particles=c["particles"], moving=int(round(c["moving_particles"])),
+               fluid=int(round(c["fluid_particles"])))
+    if fig.get("r1_date") == fig.get("r2_date") and "r1_s_per_step" in fig \
+            and "r2_s_per_step" in fig:
+        fig["speedup_1_to_2"] = fig["r1_s_per_step"] / fig["r2_s_per_step"]
+    else:
+        fig.pop("speedup_1_to_2", None)
+    record("bench_landslide", fig, ranks=max(ranks, old_ranks), source="jobs/bench_landslide.py",
+           command="mpirun -n 2 python jobs/bench_landslide.py --steps 40; "
+                   "python jobs/bench_landslide.py --steps 40")
 
 
 if __name__ == "__main__":

@@ -35,6 +35,7 @@ def record(path, benchmark: str, code: str, dim: int, particles: int, ranks: int
     for row in rows:
         out.writerow(row)
     if path:
+        os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
         new = not os.path.exists(path)
         with open(path, "a", newline="") as fh:
             w = csv.DictWriter(fh, COLUMNS)

@@ -134,3 +134,39 @@ def test_landslide_parts_keep_each_ranks_rows_of_one_phase_and_the_walls(tmp_pat
     with h5py.File(dst, "r") as g:
         assert list(g["counts"][...]) == [3, 1]
         assert list(g["fields/id"][...]) == [11, 12, 13, 16]
+
+
+def test_landslide_record_merges_the_rank_counts(tmp_path, monkeypatch):
+    """jobs/bench_landslide.py writes its own figures record: a 2-rank run's figures as
+    r2_*, a 1-rank run's as r1_* beside them, and the speedup from the two once both
+    are there from the same day; a rerun at one rank count replaces only its own."""
+    import json
+
+    from bench_landslide import STAGES, write_record
+
+    monkeypatch.setenv("PARSPH_FIGURES", str(tmp_path))
+
+    def figs(s):
+        coupled = {"s_per_step_mean": s, "s_per_step_median": 0.9 * s,
+                   "moving_particle_steps_per_s_per_core": 1e5 / s, "bytes_per_particle": 9e3,
+                   "particles": 1000, "moving_particles": 700.0, "fluid_particles": 50.0,
+                   "peak_rss_mib_rank0": 400.0, **{f"s_per_step_{k}": 0.01 for k in STAGES}}
+        return {"coupled": coupled, "solid_alone": {"s_per_step_mean": s / 2},
+                "fluid_alone": {"s_per_step_mean": s / 4}}
+
+    def figures():
+        with open(tmp_path / "bench_landslide.json") as fh:
+            rec = json.load(fh)
+        return rec["ranks"], rec["figures"]
+
+    write_record(2, figs(0.3), 1.5, 1.9)
+    ranks, fig = figures()
+    assert ranks == 2 and fig["r2_s_per_step"] == 0.3 and "speedup_1_to_2" not in fig
+    assert fig["r2_over_parts"] == 1.5 and fig["r2_solid_alone_s_per_step"] == 0.15
+    write_record(1, figs(0.48), 1.2, 1.4)
+    ranks, fig = figures()
+    assert ranks == 2 and fig["r2_s_per_step"] == 0.3 and fig["r1_s_per_step"] == 0.48
+    assert abs(fig["speedup_1_to_2"] - 1.6) < 1e-12
+    write_record(2, figs(0.24), 1.5, 1.9)
+    ranks, fig = figures()
+    assert fig["r2_s_per_step"] == 0.24 and abs(fig["speedup_1_to_2"] - 2.0) < 1e-12

@@ -233,8 +233,8 @@ def test_phase_change_of_every_particle_at_once(comm, mpi_tmp_path):
     n_solid = global_sum(comm, int((p["phase"][:ctx.n_owned] == 0).sum()))
     mass0, mom0, ids0 = totals()
     every = np.where(p["phase"][: ctx.n_owned] == 0, 2.0, 0.0)
-    stage._trigger_strain = lambda ctx: every  # past the limit, whatever the trigger's rule
-    stage._phase_change(ctx)
+    stage._trigger_strain = lambda ctx, dt: every  # past the limit, whatever the trigger's rule
+    stage._phase_change(ctx, 0.0)
     del stage._trigger_strain
     assert global_sum(comm, int((p["phase"][:ctx.n_owned] == 0).sum())) == 0
     assert stage.stats()["n_fluidised"] == n_solid
@@ -320,7 +320,8 @@ def test_phase_change_at_a_rank_boundary(comm, mpi_tmp_path):
     """A particle on the reference-partition cut, with reference neighbours on the other
     rank and its new owner by current position the other rank too, fluidises: the
     other rank drops it from its lists and recomputes its neighbours' correction
-    matrices, the particle moves to its new owner, mass and ids are conserved."""
+    matrices (the view edited, equal bit for bit to one built afresh), the particle
+    moves to its new owner, mass and ids are conserved."""
     from decomposition.reduce import allgather, global_sum
     from parsph.step.refresh import refresh
     from parsph.step.run import _build
@@ -371,8 +372,8 @@ def test_phase_change_at_a_rank_boundary(comm, mpi_tmp_path):
     p = ctx.particles
     m_tot = global_sum(comm, p["m"][:ctx.n_owned].sum())
     past = np.where(p["id"][: ctx.n_owned] == pick, 20.0, 0.0)
-    stage._trigger_strain = lambda ctx: past  # past the limit, whatever the trigger's rule
-    stage._phase_change(ctx)
+    stage._trigger_strain = lambda ctx, dt: past  # past the limit, whatever the trigger's rule
+    stage._phase_change(ctx, 0.0)
     del stage._trigger_strain
     view = stage.view
     sp = view.ctx.particles
@@ -382,6 +383,26 @@ def test_phase_change_at_a_rank_boundary(comm, mpi_tmp_path):
     assert len(changed) == (len(neighbours) if me != home else len(changed))
     if me != home:
         assert min(changed) > 1e-6  # correction matrices of the neighbours recomputed
+    # the view was edited, not built (SolidView.without_fluidised): it is what a view
+    # built from scratch is, row for row, list entry for list entry, bit for bit
+    lost = set(sp["id"][view.edit.lost].tolist())
+    assert lost == set(neighbours.tolist()) if me != home else len(lost) > 0
+    edited = (view.rows.copy(), {k: a.copy() for k, a in sp.data.items()}, sp.n_owned,
+              view.ctx.indptr.copy(), view.ctx.indices.copy(), stage.solid.fp.copy(),
+              stage.solid.clamp.copy(), stage.solid._stats["correction_clamped"])
+    stage._build_view(ctx)
+    view = stage.view
+    sp = view.ctx.particles
+    assert view.edit is None
+    rows, fields, n_owned, indptr, indices, fp, clamp, clamped = edited
+    np.testing.assert_array_equal(view.rows, rows)
+    assert sp.n_owned == n_owned and set(sp.data) == set(fields)
+    for k, a in fields.items():
+        np.testing.assert_array_equal(sp[k], a, err_msg=k)
+    for a, b in ((view.ctx.indptr, indptr), (view.ctx.indices, indices),
+                 (stage.solid.fp, fp), (stage.solid.clamp, clamp)):
+        np.testing.assert_array_equal(a, b)
+    assert stage.solid._stats["correction_clamped"] == clamped
     refresh(ctx)
     # the current halo carries what the fluid and the coupling read, not the solid's
     # state (the view's reference halo does): those halo rows are zero

@@ -404,6 +404,37 @@ def test_halo_arrival_order_is_deterministic(comm):
     np.testing.assert_array_equal(a["src"], np.repeat(np.arange(comm.size), h1.recv_counts))
 
 
+@pytest.mark.parametrize("periodic", [False, True])
+def test_halo_without_rows_is_the_halo_of_the_rows_that_stay(comm, periodic):
+    """Halo.without (a solid view edited after a phase change): the pattern of the owned
+    rows that stay gives the old exchange's rows of those that stay, in the old order,
+    and the same rows (periodic images included) a geometric build of the rows that stay
+    gives; nothing left out is sent."""
+    box = Box((0.0, 0.0, 0.0), (1.0, 0.4, 1.0), (False, periodic, False))
+    X = np.random.default_rng(12).random((600, 3)) * [1.0, 0.4, 1.0]
+    rcb, owned = _distribute(comm, X, box)
+    n = len(owned["id"])
+    halo = Halo.build(comm, rcb, owned["x"], 0.12, box)
+    keep = np.random.default_rng(comm.rank).random(n) > 0.2
+    keep[: min(n, 3)] = False  # every rank drops some
+    new, kept = halo.without(keep)
+    assert new.n_owned == keep.sum() and len(kept) == halo.n_halo
+    before = halo.exchange(owned)
+    after = new.exchange({k: a[keep] for k, a in owned.items()})
+    for k in owned:
+        np.testing.assert_array_equal(after[k], before[k][kept])
+    left = np.concatenate(comm.allgather(owned["id"][~keep]))
+    assert not np.isin(after["id"], left).any()
+    assert np.isin(before["id"][~kept], left).all()
+    built = Halo.build(comm, rcb, owned["x"][keep], 0.12, box).exchange(
+        {k: a[keep] for k, a in owned.items()})
+    order = lambda h: np.lexsort((h["x"][:, 2], h["x"][:, 1], h["x"][:, 0], h["id"]))
+    for k in owned:
+        np.testing.assert_array_equal(after[k][order(after)], built[k][order(built)])
+    with pytest.raises(ValueError, match="one per owned row"):
+        halo.without(keep[:-1] if n else np.ones(1, bool))
+
+
 @pytest.mark.parametrize("n", [0, 1])
 @pytest.mark.parametrize("periodic", [False, True])
 def test_empty_ranks_do_not_hang(comm, n, periodic):

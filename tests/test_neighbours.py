@@ -13,7 +13,8 @@ from hypothesis.extra import numpy as hnp
 
 from parsph.core import kernel as K
 from parsph.core.density import density_summation
-from parsph.core.neighbours import build_csr, cell_order, pair_count, row_lengths, row_of_pairs
+from parsph.core.neighbours import (build_csr, cell_order, pair_count, row_lengths, row_of_pairs,
+                                   without_rows)
 
 SETTINGS = settings(max_examples=80, deadline=None, database=None)
 
@@ -184,6 +185,37 @@ def test_larger_random_set_and_halo_rows(dim):
     q = indices < 2000
     pairs = set(zip(rows[q].tolist(), indices[q].tolist()))
     assert all((j, i) in pairs for i, j in pairs)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_lists_without_rows_are_the_lists_of_the_rows_that_stay(dim):
+    """without_rows (the solid's view edited after a phase change): the lists of the
+    rows that stay, query and halo rows left out alike, are build_csr's of what stays,
+    entry for entry; ``entry`` picks the kept pairs of a per-pair array, ``lost`` the
+    rows that lost a neighbour."""
+    rng = np.random.default_rng(17 + dim)
+    x = rng.uniform(0.0, 1.0, (2500, dim))
+    nq, radius = 1800, 0.09
+    indptr, indices = build_csr(x, nq, radius)
+    keep = rng.random(len(x)) > 0.005  # a few rows leave, as in a phase change
+    renumber = np.full(len(x), -1, dtype=indices.dtype)
+    kq = int(keep[:nq].sum())
+    renumber[:nq][keep[:nq]] = np.arange(kq)
+    renumber[nq:][keep[nq:]] = kq + np.arange(int(keep[nq:].sum()))
+    ptr2, ind2, entry, lost = without_rows(indptr, indices, keep[:nq], renumber)
+    ref_ptr, ref_ind = build_csr(x[np.concatenate([np.flatnonzero(keep[:nq]),
+                                                     nq + np.flatnonzero(keep[nq:])])],
+                                 kq, radius)
+    np.testing.assert_array_equal(ptr2, ref_ptr)
+    np.testing.assert_array_equal(ind2, ref_ind)
+    pair = np.arange(len(indices))  # a per-pair array: its kept entries are the new pairs'
+    rows = row_of_pairs(indptr)
+    np.testing.assert_array_equal(renumber[indices[pair[entry]]], ind2)
+    np.testing.assert_array_equal(renumber[rows[pair[entry]]], row_of_pairs(ptr2))
+    old_rows = np.flatnonzero(keep[:nq])
+    expect = np.diff(indptr)[old_rows] != np.diff(ptr2)
+    np.testing.assert_array_equal(lost, expect)
+    assert lost.any() and not lost.all()
 
 
 @pytest.mark.parametrize("dim", [1, 2, 3])

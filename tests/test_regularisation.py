@@ -119,6 +119,35 @@ def test_default_length_and_bad_lengths(tmp_path):
     assert not mat.regularised
 
 
+def test_the_trigger_fires_where_a_fit_every_step_fires(comm, mpi_tmp_path, monkeypatch):
+    """The windowed trigger fits a window again only once the velocity's spread over it
+    could have carried its strain to the limit (WindowTrigger): the slope fluidises at
+    the same steps, the same particles, as when every candidate's window is fitted every
+    step (an infinite spread), and the run is the same to the last digit; most
+    candidates are not fitted in a step."""
+    from parsph.solid import trigger
+
+    scene = load_scene("slope_failure", ["domain.particle_size=0.05", "run.end_time=0.8",
+                                         "output.every=0.8", "output.progress=false"])
+    fits = []
+    fit = trigger.window_strain
+    monkeypatch.setattr(trigger, "window_strain",
+                        lambda rows, *a: fits.append(len(rows)) or fit(rows, *a))
+    lazy = os.path.join(mpi_tmp_path, "lazy")
+    run(scene, lazy, comm=comm, progress=False)
+    lazy_fits, fits[:] = sum(fits), []
+    monkeypatch.setattr(trigger, "window_spread", lambda *a: a[-1].fill(np.inf))
+    every = os.path.join(mpi_tmp_path, "every")
+    run(scene, every, comm=comm, progress=False)
+    a, b = stats_rows(lazy), stats_rows(every)
+    assert len(a) == len(b) and float(a[-1]["n_fluidised"]) > 50
+    for ra, rb in zip(a, b):
+        for k in ra:
+            if not (k.startswith("wall_s") or k == "elapsed_s"):
+                assert ra[k] == rb[k], (ra["step"], k)
+    assert comm.allreduce(lazy_fits) < 0.2 * comm.allreduce(sum(fits))
+
+
 def test_local_key_is_the_papers_rule(comm, mpi_tmp_path):
     """``regularisation = "local"``: no non-local field, no PETSc system, and the slope's
     TLSPH-only run is the paper's local rule (the same stats as before the length

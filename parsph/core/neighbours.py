@@ -518,3 +518,41 @@ def row_of_pairs(indptr):
         ``rows[p] = i`` for ``indptr[i] <= p < indptr[i + 1]``.
     """
     return np.repeat(np.arange(len(indptr) - 1, dtype=np.int32), np.diff(indptr))
+
+
+@njit(cache=True, error_model="numpy")
+def without_rows(indptr, indices, keep_query, renumber):
+    """The lists of :func:`build_csr` with rows left out: only the query rows where
+    ``keep_query``, and in each only the neighbours ``j`` with ``renumber[j] >= 0``,
+    renumbered to ``renumber[j]``. ``renumber`` must keep the order of the rows that stay
+    (then each list stays ascending: the lists :func:`build_csr` gives for the rows that
+    stay). Returns ``(indptr, indices, entry, lost)``: ``entry`` flags the old entries
+    kept (to filter per-pair arrays), ``lost`` the new query rows that lost a neighbour."""
+    nq = indptr.shape[0] - 1
+    entry = np.zeros(indices.shape[0], dtype=np.bool_)
+    count = 0
+    rows = 0
+    for i in range(nq):
+        if keep_query[i]:
+            rows += 1
+            for q in range(indptr[i], indptr[i + 1]):
+                if renumber[indices[q]] >= 0:
+                    entry[q] = True
+                    count += 1
+    out_ptr = np.zeros(rows + 1, dtype=indptr.dtype)
+    out = np.empty(count, dtype=indices.dtype)
+    lost = np.zeros(rows, dtype=np.bool_)
+    r = 0
+    c = 0
+    for i in range(nq):
+        if not keep_query[i]:
+            continue
+        for q in range(indptr[i], indptr[i + 1]):
+            if entry[q]:
+                out[c] = renumber[indices[q]]
+                c += 1
+            else:
+                lost[r] = True
+        r += 1
+        out_ptr[r] = c
+    return out_ptr, out, entry, lost

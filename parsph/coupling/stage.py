@@ -28,7 +28,7 @@ import time
 
 import numpy as np
 
-from decomposition.reduce import global_max, global_reduce, global_sum
+from decomposition.reduce import allgather, global_max, global_reduce, global_sum
 from parsph.coupling.view import VIEW_FIELDS, SolidView
 from parsph.core.particles import max_speed
 from parsph.scene.materials import PHASE_FLUID, PHASE_SOLID
@@ -63,7 +63,7 @@ MAIN_ONLY = ("nu", "v_star", "v_ghost", "free_surface", "wall_slip", "fluid_row"
 HALO_SKIP = VIEW_STATE + ("X", "eps_p", "p_c", "porosity", "modulus", "ref_count0",
                           "contact_a", "solid_init", "fluidised", "ppe_band",
                           "eps_p_geostatic", "x_settled") + NONLOCAL_STATE \
-    + ("eps_trigger", "trigger_time", "trigger_rate")
+    + ("eps_trigger", "trigger_time", "trigger_rate", "trigger_reach")
 
 #: stats.csv columns of the coupling; ``fsi_force_*`` (N, N/m in 2D) is the net force of
 #: the fluid on the solid (eq. (45), pressure and viscous parts) before constraints.
@@ -125,10 +125,10 @@ class Coupled:
 
     # -- set-up ------------------------------------------------------------------
     def _window(self, ctx):
-        """The regularised trigger (:class:`parsph.solid.regularise.WindowTrigger`) if
+        """The regularised trigger (:class:`parsph.solid.trigger.WindowTrigger`) if
         some soil that changes phase has an internal length, else None; adds the
         ``eps_trigger`` field (written to every frame)."""
-        from parsph.solid.regularise import WINDOW_IN_ELL, WindowTrigger
+        from parsph.solid.trigger import WINDOW_IN_ELL, WindowTrigger
         from parsph.solid.update import C as COL, CAM_CLAY
 
         if ctx.scene.phase_change.eps_p_limit <= 0.0:
@@ -142,21 +142,28 @@ class Coupled:
                   else tab[k, COL["xi"]] for k in range(len(ctx.materials))]
         window = WindowTrigger(ctx.comm, [WINDOW_IN_ELL * e for e in ell], factor)
         for name in window.FIELDS:
-            ctx.particles.add_field(name)
+            ctx.particles.add_field(name, fill=window.FILL.get(name, 0.0))
         return window
 
-    def _build_view(self, ctx) -> None:
+    def _build_view(self, ctx, edit=False, left=None) -> None:
         """The solid's view of the owned solid rows: its state from the main set, the
         tensors of :data:`VIEW_STATE` from the last view where the main set has them not
-        (then they leave the main set)."""
-        self.view = SolidView(ctx, MAIN_ONLY, VIEW_STATE, self.view)
+        (then they leave the main set). ``edit``: the last view less the rows a phase
+        change took out of the solid, its halo and lists edited rather than built
+        (:meth:`SolidView.without_fluidised`; the same view)."""
+        if edit:
+            self.view = self.view.without_fluidised(MAIN_ONLY, VIEW_STATE)
+        else:
+            self.view = SolidView(ctx, MAIN_ONLY, VIEW_STATE, self.view)
         sp, ns = self.view.ctx.particles, self.view.n
         count = np.diff(self.view.ctx.indptr).astype(np.int32)
         first = sp["ref_count0"][:ns] == 0
         sp["ref_count0"][:ns][first] = count[first]
-        self.solid.setup(self.view.ctx)
+        self.solid.setup(self.view.ctx, self.view.edit)
         if self.window is not None:
             self.window.build(self.view.ctx, self.solid.sel)
+            if left is not None:  # the windows that lost targets (WindowTrigger)
+                self.window.targets_left(self.view.ctx, left)
         self.view.write_back(self.solid_state + ("ref_count0",))
         for name in VIEW_STATE:
             ctx.particles.data.pop(name, None)
@@ -317,11 +324,11 @@ class Coupled:
         view.write_back(self.solid_state)
         t_solid += time.perf_counter() - t0
         t0 = time.perf_counter()
-        self._phase_change(ctx)
+        self._phase_change(ctx, dt)
         self._stats.update(wall_s_solid=t_solid, wall_s_fluid=t_fluid, solid_substeps=k,
                            wall_s_phase_change=time.perf_counter() - t0)
 
-    def _trigger_strain(self, ctx) -> np.ndarray:
+    def _trigger_strain(self, ctx, dt) -> np.ndarray:
         """The main set's owned rows' strain the phase change compares with its limit: the
         window strain of the regularised soils (:class:`parsph.solid.regularise.
         WindowTrigger`), the accumulated plastic strain of the others (section 3.3)."""
@@ -330,18 +337,17 @@ class Coupled:
             return p["eps_p"][:n] - (p["eps_p_geostatic"][:n] if "eps_p_geostatic" in p else 0.0)
         view = self.view
         value = np.zeros(view.n)
-        vmax = global_max(ctx.comm, max_speed(view.ctx.particles["v"], view.n))
-        self.window.strain(view.ctx, self.limit, ctx.time, vmax, value)
+        self.window.strain(view.ctx, self.limit, ctx.time, dt, value)
         view.write_back(self.window.FIELDS)
         out = np.zeros(n)
         out[view.rows] = value
         return out
 
-    def _phase_change(self, ctx) -> None:
+    def _phase_change(self, ctx, dt) -> None:
         """Section 3.3: solid rows past the plastic-strain limit become fluid."""
         p, n = ctx.particles, ctx.n_owned
         if self.limit > 0.0:
-            past = (p["phase"][:n] == PHASE_SOLID) & (self._trigger_strain(ctx) > self.limit)
+            past = (p["phase"][:n] == PHASE_SOLID) & (self._trigger_strain(ctx, dt) > self.limit)
             failed = self.view.rows[self.solid.failed]  # det F <= 0: it has failed
             past[failed] = True
             flag = np.flatnonzero(past)
@@ -358,7 +364,12 @@ class Coupled:
                 p["nu"][flag] = 0.0
                 p["wall_slip"][flag] = 0
                 self._stats["n_fluidised"] = int(self._stats["n_fluidised"]) + int(count)
-                self._build_view(ctx)  # reference halo and lists without them
+                # reference halo and lists without them
+                left = None
+                if self.window is not None:
+                    ref = p["x_settled"] if "x_settled" in p else p["X"]
+                    left = np.concatenate(allgather(ctx.comm, ref[flag]))
+                self._build_view(ctx, edit=True, left=left)
                 flag = self._orphans()
                 count = global_sum(ctx.comm, len(flag))
         self._count(ctx)

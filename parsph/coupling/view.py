@@ -16,7 +16,7 @@ import numpy as np
 
 from decomposition.halo import Halo
 from parsph.scene.materials import PHASE_SOLID
-from parsph.core.neighbours import build_csr
+from parsph.core.neighbours import build_csr, without_rows
 from parsph.core.particles import ParticleSet
 from parsph.core.context import Context
 
@@ -26,6 +26,21 @@ from parsph.core.context import Context
 #: eq. (13) each step recomputes. In the
 #: main set they would cost 144 bytes per particle of every phase (docs/coupling.md).
 VIEW_FIELDS = {"L": (3, 3), "Q": (3, 3)}
+
+
+@dataclass
+class ViewEdit:
+    """What a view edited after a phase change (:meth:`SolidView.without_fluidised`)
+    keeps of the last one, for the solid's set-up
+    (:meth:`parsph.solid.stage.TLSPH.setup`): which of the last view's owned rows stay
+    (``keep``), which of its list entries (``entry``), the new rows that lost a
+    neighbour (``lost``: the only correction matrices that change) and the correction
+    matrices of the rows that stay (``L``)."""
+
+    keep: np.ndarray
+    entry: np.ndarray
+    lost: np.ndarray
+    L: np.ndarray
 
 
 @dataclass
@@ -57,22 +72,32 @@ class SolidView:
         Main-set row of each owned solid row (valid after :meth:`locate`).
     """
 
-    def __init__(self, ctx, main_only=(), carried=(), carry=None):
+    def __init__(self, ctx, main_only=(), carried=(), carry=None, _edit=None):
         p = ctx.particles
         n = p.n_owned
         self.main = ctx
-        rows = np.flatnonzero(p["phase"][:n] == PHASE_SOLID)
+        if _edit is None:
+            rows = np.flatnonzero(p["phase"][:n] == PHASE_SOLID)
+        else:
+            rows, halo, indptr, indices, self.edit = _edit
         # every field of the main set but ``main_only`` (the fluid's and the coupling's,
         # which TLSPH never reads), and the view's own
         fields = {k: a[:n][rows] for k, a in p.data.items() if k not in main_only}
         missing = [k for k in carried if k not in fields]
-        if missing:  # the state only the last view held: taken over by id
+        if missing and _edit is not None:  # the state only the last view held
+            fields.update({k: carry.ctx.particles[k][: carry.n][self.edit.keep]
+                           for k in missing})
+        elif missing:  # the state only the last view held: taken over by id
             fields.update(_take_over(carry, p["id"][:n][rows], missing))
         fields.update({k: np.zeros((rows.size,) + shape) for k, shape in VIEW_FIELDS.items()})
         sp = ParticleSet(ctx.dim, fields)
-        halo = Halo.build(ctx.comm, ctx.rcb_ref, sp["X"][: sp.n_owned], ctx.radius, ctx.box)
+        if _edit is None:
+            halo = Halo.build(ctx.comm, ctx.rcb_ref, sp["X"][: sp.n_owned], ctx.radius,
+                              ctx.box)
         sp.set_halo(halo.exchange(sp.owned_fields(), shift_fields=("x", "X")))
-        indptr, indices = build_csr(sp["X"], sp.n_owned, ctx.radius)
+        if _edit is None:
+            indptr, indices = build_csr(sp["X"], sp.n_owned, ctx.radius)
+            self.edit = None
         self.ctx = SolidContext(
             scene=ctx.scene, comm=ctx.comm, particles=sp, box=ctx.box, dim=ctx.dim, d=ctx.d,
             h=ctx.h, radius=ctx.radius, rcb=ctx.rcb_ref, halo=halo, indptr=indptr,
@@ -81,6 +106,37 @@ class SolidView:
         self.ids = sp["id"][: sp.n_owned].copy()
         self.rows = rows
         self._rows_max = int(rows.max()) if len(rows) else -1
+
+    def without_fluidised(self, main_only=(), carried=()) -> "SolidView":
+        """Collective: the view of this one's rows still solid in the main set (those a
+        phase change took out left), edited instead of built: its reference halo by
+        :meth:`decomposition.halo.Halo.without` and its lists by
+        :func:`parsph.core.neighbours.without_rows`, with no geometric search. The rows
+        that stay keep their order, in the view and in its halo, so the lists are what
+        :func:`build_csr` gives (ascending) and the fields what a new view copies;
+        ``edit`` (:class:`ViewEdit`) tells the solid's set-up what it may keep.
+
+        A phase change only takes rows out of the solid, and solid rows never change
+        rank, so the main set's solid rows are this view's less those that left;
+        RuntimeError if not (build a new view instead)."""
+        ctx = self.main
+        self.locate()
+        p = ctx.particles
+        keep = p["phase"][self.rows] == PHASE_SOLID
+        if int(keep.sum()) != int((p["phase"][: p.n_owned] == PHASE_SOLID).sum()):
+            raise RuntimeError("solid view: the main set has solid rows the last view has "
+                               "not; build a new view (SolidView) instead of editing it")
+        old = self.ctx.particles
+        halo, kept = self.ctx.halo.without(keep)
+        renumber = np.full(old.n_total, -1, dtype=self.ctx.indices.dtype)
+        renumber[: self.n][keep] = np.arange(int(keep.sum()))
+        renumber[self.n:][kept] = int(keep.sum()) + np.arange(int(kept.sum()))
+        indptr, indices, entry, lost = without_rows(self.ctx.indptr, self.ctx.indices, keep,
+                                                    renumber)
+        edit = ViewEdit(keep=keep, entry=entry, lost=np.flatnonzero(lost),
+                        L=old["L"][: self.n][keep])
+        return SolidView(ctx, main_only, carried, self,
+                         _edit=(self.rows[keep], halo, indptr, indices, edit))
 
     def state_to(self, names) -> tuple:
         """Put the named fields of the view back in the main set (owned solid rows; zero

@@ -86,7 +86,7 @@ DEFAULT_LENGTH_IN_D = 2.0
 #: Smallest internal length a run accepts, in particle sizes (docs/regularisation.md).
 MIN_RESOLVED = 1.0
 #: The phase change's trigger window, in internal lengths: its radius
-#: (:class:`parsph.solid.regularise.WindowTrigger`).
+#: (:class:`parsph.solid.trigger.WindowTrigger`).
 WINDOW_IN_ELL = 2.0
 
 

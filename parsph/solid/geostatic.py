@@ -30,7 +30,7 @@ its reference configuration X (TLSPH's: the stress-free lattice) and F the stage
 deformation, consistent with the kept stress; what the run reports as deformation counts
 from the settled state: the plastic strain gathered in the stage (``eps_p_geostatic``,
 written to every frame) is taken off the phase change's trigger, and the windowed trigger
-(:class:`parsph.solid.regularise.WindowTrigger`) fits the deformation from the settled
+(:class:`parsph.solid.trigger.WindowTrigger`) fits the deformation from the settled
 positions (``x_settled``), unless ``count_plastic_strain``. The softening keeps the
 stage's plastic strain: the soil has softened.
 """

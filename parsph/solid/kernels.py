@@ -70,35 +70,52 @@ def correction_matrices(X, vol, sel, n, indptr, indices, h, dim, floor, L):
     clamped = 0
     A = np.zeros((3, 3))
     for i in range(n):
-        for a in range(3):
-            for b in range(3):
-                L[i, a, b] = 1.0 if a == b else 0.0
-        if not sel[i]:
-            continue
-        A[:, :] = 0.0
-        if dim == 2:
-            A[2, 2] = 1.0
-        for p in range(indptr[i], indptr[i + 1]):
-            j = indices[p]
-            if not sel[j]:
-                continue
-            r2 = 0.0
-            for a in range(dim):
-                r2 += (X[i, a] - X[j, a]) ** 2
-            f = -_factor(math.sqrt(r2), h, dim) * vol[j]
-            for a in range(dim):
-                for b in range(dim):
-                    A[a, b] += f * (X[i, a] - X[j, a]) * (X[i, b] - X[j, b])
-        w, V = eigh3(A)
-        if w[0] < floor:
-            clamped += 1
-        for a in range(3):
-            for b in range(3):
-                s = 0.0
-                for k in range(3):
-                    s += V[a, k] * V[b, k] / max(w[k], floor)
-                L[i, a, b] = s
+        clamped += _correction_row(i, X, vol, sel, indptr, indices, h, dim, floor, L, A)
     return clamped
+
+
+@njit(cache=True, error_model="numpy")
+def correction_rows(rows, X, vol, sel, indptr, indices, h, dim, floor, L, clamp):
+    """:func:`correction_matrices` of the given ``rows`` only (the rows whose lists
+    changed: the solid's view edited after a phase change); ``clamp[i]`` is set to
+    whether row ``i``'s M needed the floor."""
+    A = np.zeros((3, 3))
+    for k in range(rows.shape[0]):
+        i = rows[k]
+        clamp[i] = _correction_row(i, X, vol, sel, indptr, indices, h, dim, floor, L, A)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _correction_row(i, X, vol, sel, indptr, indices, h, dim, floor, L, A):
+    """L_i of :func:`correction_matrices` into ``L[i]`` (``A``: 3 x 3 scratch); 1 if
+    M_i needed the floor, else 0."""
+    for a in range(3):
+        for b in range(3):
+            L[i, a, b] = 1.0 if a == b else 0.0
+    if not sel[i]:
+        return 0
+    A[:, :] = 0.0
+    if dim == 2:
+        A[2, 2] = 1.0
+    for p in range(indptr[i], indptr[i + 1]):
+        j = indices[p]
+        if not sel[j]:
+            continue
+        r2 = 0.0
+        for a in range(dim):
+            r2 += (X[i, a] - X[j, a]) ** 2
+        f = -_factor(math.sqrt(r2), h, dim) * vol[j]
+        for a in range(dim):
+            for b in range(dim):
+                A[a, b] += f * (X[i, a] - X[j, a]) * (X[i, b] - X[j, b])
+    w, V = eigh3(A)
+    for a in range(3):
+        for b in range(3):
+            s = 0.0
+            for k in range(3):
+                s += V[a, k] * V[b, k] / max(w[k], floor)
+            L[i, a, b] = s
+    return 1 if w[0] < floor else 0
 
 
 @njit(cache=True, error_model="numpy")

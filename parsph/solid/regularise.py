@@ -26,7 +26,7 @@ neighbour lists with the pairwise Laplacian of Brookshaw (1985), multiplied by
 (:func:`parsph.solid.kernels.pair_factors`). The pair sum is antisymmetric, so
 :math:`\sum_i V_i\tilde\kappa_i = \sum_i V_i\kappa_i` exactly: no flux leaves the soil (the
 natural boundary condition, also where particles left it by a phase change). A global
-solve on PETSc (:class:`solvers.LinearSystem`, prefix ``nonlocal_``, CG + Jacobi by
+solve on PETSc (:func:`nonlocal_system`, prefix ``nonlocal_``, CG + block ICC by
 default); the matrix depends on the reference configuration only, so it is built when
 the solid's rows change (set-up, phase change) and each step only solves, from the
 last step's :math:`\tilde\kappa`.
@@ -45,21 +45,20 @@ an elastic wave's transit of one particle). In a uniform field :math:`\tilde\kap
 average) does not keep a band from narrowing to the particle size in softening
 plasticity; m = 2 does (docs/regularisation.md).
 
-**The trigger** of the phase change is :math:`\tilde\kappa > \epsilon_p^{limit}`.
+**The trigger** of the phase change sees the length through a window of radius 2ℓ in
+the reference configuration, not through :math:`\tilde\kappa`
+(:mod:`parsph.solid.trigger`).
 
 Modified Cam-Clay's softening (its pre-consolidation pressure on the dry side) stays
 local: the average reaches it only through the trigger (docs/regularisation.md).
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from numba import njit
 
 from decomposition.numbering import global_offset
-from decomposition.reduce import global_any, global_max
-from parsph.core.tensor import eigh3, inv3_into
+from decomposition.reduce import global_max
 
 @njit(cache=True, error_model="numpy")
 def helmholtz_block(reg, vol, ell2, n, indptr, indices, fp, gid):
@@ -120,17 +119,26 @@ def helmholtz_block(reg, vol, ell2, n, indptr, indices, fp, gid):
         cols[at] = gi
         vals[at] = diag
         at += 1
-        # sort the row's columns and sum duplicates (periodic images of one particle)
-        order = np.argsort(cols[start:at], kind="mergesort")
-        c_sorted = cols[start:at][order].copy()
-        v_sorted = vals[start:at][order].copy()
+        # sort the row's columns and sum duplicates (periodic images of one particle):
+        # a stable insertion sort in place, the columns of the owned neighbours coming
+        # ascending already (an argsort and its copies per row had cost three times the
+        # row's sums)
+        for q in range(start + 1, at):
+            cq, vq = cols[q], vals[q]
+            r = q
+            while r > start and cols[r - 1] > cq:
+                cols[r] = cols[r - 1]
+                vals[r] = vals[r - 1]
+                r -= 1
+            cols[r] = cq
+            vals[r] = vq
         w = start
-        for q in range(len(order)):
-            if q > 0 and c_sorted[q] == cols[w - 1]:
-                vals[w - 1] += v_sorted[q]
+        for q in range(start, at):
+            if q > start and cols[q] == cols[w - 1]:
+                vals[w - 1] += vals[q]
             else:
-                cols[w] = c_sorted[q]
-                vals[w] = v_sorted[q]
+                cols[w] = cols[q]
+                vals[w] = vals[q]
                 w += 1
         at = w
         k += 1
@@ -153,6 +161,20 @@ def drift_since_solve(reg, n, value, average, shift):
 #: by this much since the last solve (and after every change of the solid's rows): its
 #: lag then moves the cohesion by at most m |H| 1e-5 and the trigger by 1e-5.
 SOLVE_TOLERANCE = 1.0e-5
+
+
+def nonlocal_system(comm, n_rows):
+    """The PETSc system of the average (options prefix ``nonlocal_``): CG with incomplete
+    Cholesky on each rank's block, of Jacobi, BoomerAMG, GAMG and ICC the fastest here
+    (docs/regularisation.md); it stops at a fall of the residual by 1e-9 (an absolute
+    stop at a hundredth of :data:`SOLVE_TOLERANCE` took 8.7 -> 6.7 iterations a step
+    on the 3D slope, but 1 and 2 ranks, whose block preconditioners differ, then agreed
+    to 6e-8 m instead of 1e-9: dropped)."""
+    import solvers
+
+    return solvers.LinearSystem(comm, "nonlocal_", n_rows, ksp_type="cg", pc_type="bjacobi",
+                                rtol=1e-9, max_it=10000,
+                                options={"sub_pc_type": "icc"})
 
 
 class NonlocalStrain:
@@ -198,8 +220,6 @@ class NonlocalStrain:
     def build(self, ctx, vol, sel, fp) -> None:
         """Collective: number the owned regularised rows, send their numbers to the halo,
         assemble the matrix (:func:`helmholtz_block`)."""
-        import solvers
-
         p, n = ctx.particles, ctx.particles.n_owned
         material = p["material"]
         reg = self.rows(material, sel)
@@ -217,11 +237,7 @@ class NonlocalStrain:
         ell2 = self.ell2_of[np.maximum(material, 0)]
         ptr, cols, vals = helmholtz_block(reg, vol, ell2, n, ctx.indptr, ctx.indices, fp, gid)
         if self.system is None:
-            # CG with incomplete Cholesky on each rank's block: of Jacobi, BoomerAMG,
-            # GAMG and ICC the fastest here (docs/regularisation.md)
-            self.system = solvers.LinearSystem(
-                ctx.comm, "nonlocal_", self.n_rows, ksp_type="cg", pc_type="bjacobi",
-                rtol=1e-9, max_it=10000, options={"sub_pc_type": "icc"})
+            self.system = nonlocal_system(ctx.comm, self.n_rows)
         else:
             self.system.resize(self.n_rows)
         self.system.assemble_csr(ptr, cols, vals)
@@ -262,243 +278,3 @@ class NonlocalStrain:
         if self.system is not None:
             self.system.destroy()
             self.system = None
-
-
-#: The window's targets are binned in cells of side R / WINDOW_CELLS_PER_R in the
-#: reference configuration (:func:`bin_window`): a row's window visits the
-#: (2 WINDOW_CELLS_PER_R + 1)^3 cells around its own.
-WINDOW_CELLS_PER_R = 2
-
-
-def bin_window(X, sel, R, dim):
-    """The window's targets (the rows of ``X`` where ``sel``) sorted by cell, for
-    :func:`window_strain`: ``(order, start, lo, cell, ncell, reach)``, the rows in cell
-    order, each cell's first position in it (dense over the targets' box, plus one), the
-    box's low corner, the cell side, the cells per axis (3; 1 beyond ``dim``) and the
-    cells a window reaches on each side. Cells of R / 2, or of R where that grid would
-    hold more than eight cells per target (a sparse box)."""
-    rows = np.flatnonzero(sel)
-    Xp = np.zeros((len(X), 3))
-    Xp[:, :dim] = X[:, :dim]
-    lo = Xp[rows].min(axis=0) if len(rows) else np.zeros(3)
-    extent = (Xp[rows].max(axis=0) - lo) if len(rows) else np.zeros(3)
-    for per in (WINDOW_CELLS_PER_R, 1):
-        cell = R / per
-        ncell = np.floor(extent / cell).astype(np.int64) + 1
-        if int(np.prod(ncell)) <= 8 * len(rows) + 1024:
-            break
-    idx = np.minimum(np.floor((Xp[rows] - lo) / cell).astype(np.int64), ncell - 1)
-    lin = (idx[:, 0] * ncell[1] + idx[:, 1]) * ncell[2] + idx[:, 2]
-    o = np.argsort(lin, kind="stable")
-    start = np.searchsorted(lin[o], np.arange(int(np.prod(ncell)) + 1)).astype(np.int64)
-    return rows[o].astype(np.int64), start, lo, float(cell), ncell, per
-
-
-@njit(cache=True, error_model="numpy")
-def window_strain(rows, X, x, order, start, lo, cell, ncell, per, Xs, xs, R, dim, out,
-                  gain):
-    r"""Shear strain of the deformation over a window of radius R in the reference
-    configuration, for each row of ``rows``: the deformation gradient fitted by weighted
-    least squares, :math:`\mathbf F = \mathbf B\mathbf M^{-1}`,
-    :math:`\mathbf M = \sum_j w_j \mathbf X_{ij}\otimes\mathbf X_{ij}`,
-    :math:`\mathbf B = \sum_j w_j \mathbf x_{ij}\otimes\mathbf X_{ij}` over the targets j
-    within R (:func:`bin_window`'s cells ``order``, ``start``, ...: the rows of the
-    window's solid; ``Xs``, ``xs`` their positions in that order; :math:`w = (1 -
-    r^2/R^2)^2`), then its logarithmic strain's shear measure
-    :math:`\sqrt{2\,\mathrm{dev}\,\mathbf e : \mathrm{dev}\,\mathbf e}` (the engineering
-    shear in simple shear). The window spans gaps the fluidised soil left, so it sees the
-    slip across them. ``gain`` gets :math:`\sum_j w_j |\mathbf X_{ij}| / \lambda_{min}
-    (\mathbf M)` (1/m): :math:`|\dot{\mathbf F}| \le 2 v_{max}` times it. The targets are
-    visited cell by cell, without neighbour lists (the window's lists had cost twice its
-    fit: 65 against 33 ns a pair on the aso scene at d = 8 m)."""
-    M = np.zeros((3, 3))
-    B = np.zeros((3, 3))
-    Minv = np.zeros((3, 3))
-    F = np.zeros((3, 3))
-    C = np.zeros((3, 3))
-    R2 = R * R
-    ci = np.zeros(3, dtype=np.int64)
-    c0 = np.zeros(3, dtype=np.int64)
-    c1 = np.zeros(3, dtype=np.int64)
-    for k in range(len(rows)):
-        i = rows[k]
-        for a in range(3):
-            ci[a] = 0
-            if a < dim:
-                ci[a] = min(max(int(math.floor((X[i, a] - lo[a]) / cell)), 0), ncell[a] - 1)
-            c0[a] = max(ci[a] - per, 0)
-            c1[a] = min(ci[a] + per, ncell[a] - 1)
-        cnt = 0
-        reach = 0.0
-        # M (symmetric) and B in scalars: the 3 x 3 arrays' loads and stores had cost
-        # three times the arithmetic
-        m00 = m01 = m02 = m11 = m12 = m22 = 0.0
-        b00 = b01 = b02 = b10 = b11 = b12 = b20 = b21 = b22 = 0.0
-        Xi0, Xi1, xi0, xi1 = X[i, 0], X[i, 1], x[i, 0], x[i, 1]
-        Xi2 = X[i, 2] if dim == 3 else 0.0
-        xi2 = x[i, 2] if dim == 3 else 0.0
-        for cx in range(c0[0], c1[0] + 1):
-            for cy in range(c0[1], c1[1] + 1):
-                for cz in range(c0[2], c1[2] + 1):
-                    c = (cx * ncell[1] + cy) * ncell[2] + cz
-                    for q in range(start[c], start[c + 1]):
-                        d0 = Xs[q, 0] - Xi0
-                        d1 = Xs[q, 1] - Xi1
-                        d2 = Xs[q, 2] - Xi2 if dim == 3 else 0.0
-                        r2 = d0 * d0 + d1 * d1 + d2 * d2
-                        if r2 >= R2 or order[q] == i:
-                            continue
-                        w = (1.0 - r2 / R2) ** 2
-                        cnt += 1
-                        reach += w * math.sqrt(r2)
-                        u0 = w * (xs[q, 0] - xi0)
-                        u1 = w * (xs[q, 1] - xi1)
-                        u2 = w * (xs[q, 2] - xi2) if dim == 3 else 0.0
-                        w0, w1, w2 = w * d0, w * d1, w * d2
-                        m00 += w0 * d0
-                        m01 += w0 * d1
-                        m02 += w0 * d2
-                        m11 += w1 * d1
-                        m12 += w1 * d2
-                        m22 += w2 * d2
-                        b00 += u0 * d0
-                        b01 += u0 * d1
-                        b02 += u0 * d2
-                        b10 += u1 * d0
-                        b11 += u1 * d1
-                        b12 += u1 * d2
-                        b20 += u2 * d0
-                        b21 += u2 * d1
-                        b22 += u2 * d2
-        M[0, 0], M[0, 1], M[0, 2] = m00, m01, m02
-        M[1, 0], M[1, 1], M[1, 2] = m01, m11, m12
-        M[2, 0], M[2, 1], M[2, 2] = m02, m12, m22
-        B[0, 0], B[0, 1], B[0, 2] = b00, b01, b02
-        B[1, 0], B[1, 1], B[1, 2] = b10, b11, b12
-        B[2, 0], B[2, 1], B[2, 2] = b20, b21, b22
-        if cnt < 2 * dim:
-            out[k] = 0.0
-            gain[k] = math.inf
-            continue
-        if dim == 2:
-            half = 0.5 * (M[0, 0] - M[1, 1])
-            low = 0.5 * (M[0, 0] + M[1, 1]) - math.sqrt(half * half + M[0, 1] * M[0, 1])
-            M[2, 2] = 1.0
-            B[2, 2] = 1.0
-        else:
-            lam, _ = eigh3(M)
-            low = lam[0]
-        gain[k] = reach / low if low > 0.0 else math.inf
-        inv3_into(M, Minv)
-        for a in range(3):
-            for b in range(3):
-                s = 0.0
-                for c in range(3):
-                    s += B[a, c] * Minv[c, b]
-                F[a, b] = s
-        for a in range(3):
-            for b in range(3):
-                s = 0.0
-                for c in range(3):
-                    s += F[c, a] * F[c, b]
-                C[a, b] = s
-        lam, _ = eigh3(C)
-        e0 = 0.5 * math.log(max(lam[0], 1e-300))
-        e1 = 0.5 * math.log(max(lam[1], 1e-300))
-        e2 = 0.5 * math.log(max(lam[2], 1e-300))
-        mean = (e0 + e1 + e2) / 3.0
-        out[k] = math.sqrt(2.0 * ((e0 - mean) ** 2 + (e1 - mean) ** 2 + (e2 - mean) ** 2))
-
-
-from parsph.scene.materials import WINDOW_IN_ELL  # noqa: E402 (the window's radius in l)
-
-
-class WindowTrigger:
-    r"""The phase change's trigger strain over a window of the reference configuration
-    (docs/regularisation.md): for each solid row that has yielded, the shear strain of
-    the deformation gradient fitted over the solid within R = :data:`WINDOW_IN_ELL` ℓ of
-    its reference position (:func:`window_strain`), in the units of its material's
-    accumulated plastic strain (``factor``: ξ for Drucker–Prager, whose ε̄ᵖ grows by ξ
-    per unit of plastic shear; 1/√3 for modified Cam–Clay's von Mises measure).
-
-    The window reaches over the gaps the fluidised soil leaves, so a particle next to a
-    fluidised band sees the slip across it: the zone that fluidises around a slip surface
-    is set by R, not by the particle size.
-
-    A row's window is evaluated again only when it could have reached the limit: its
-    strain grows at most as fast as ``4 factor gain v_max`` (:func:`window_strain`: the
-    fit's gain, v_max the solid's largest speed, a factor 2 for the logarithm), so a row
-    at ``value`` evaluated at ``t_e`` cannot pass ``limit`` before
-    ``t_e + (limit - value) / rate``. The trigger then fires at the step it would with an
-    evaluation every step, and the window's positions cross the ranks only on a step
-    where some rank has a row due. Per-row state (solid fields, so views, migration and
-    checkpoints carry it): ``eps_trigger`` (the value at the row's last evaluation),
-    ``trigger_time``, ``trigger_rate``.
-
-    Parameters
-    ----------
-    comm : mpi4py communicator
-    radius_of, factor_of : ndarray (n_materials,)
-        R (m) and the strain factor per material (R = 0: the material's rows keep the
-        local trigger, their accumulated plastic strain). The window takes the largest R.
-    """
-
-    #: A row is a candidate once its accumulated plastic strain passes this fraction of
-    #: the limit: elastic soil does not change phase.
-    CANDIDATE = 2e-3
-    #: Per-row state it adds to the solid (view and main set).
-    FIELDS = ("eps_trigger", "trigger_time", "trigger_rate")
-
-    def __init__(self, comm, radius_of, factor_of):
-        self.comm = comm
-        self.radius_of = np.asarray(radius_of, float)
-        self.factor_of = np.asarray(factor_of, float)
-        self.R = float(self.radius_of.max()) if len(self.radius_of) else 0.0
-        self.halo = None
-
-    def build(self, vctx, sel) -> None:
-        """Collective: the window's halo (the solid rows within R of this rank's, in X) and
-        their fixed fields; after every change of the solid's rows."""
-        from decomposition.halo import Halo
-
-        p, n = vctx.particles, vctx.particles.n_owned
-        self.halo = Halo.build(vctx.comm, vctx.rcb, p["X"][:n], self.R, vctx.box)
-        # the deformation counts from the settled state after a geostatic stage
-        # (parsph.solid.geostatic), else from the reference configuration
-        ref = p["x_settled"] if "x_settled" in p else p["X"]
-        fixed = self.halo.exchange({"X": ref[:n], "sel": sel[:n].astype(np.uint8)},
-                                   shift_fields=("X",))
-        self.X = np.ascontiguousarray(np.concatenate([ref[:n], fixed["X"]]))
-        self.sel = np.concatenate([sel[:n], fixed["sel"].astype(bool)])
-        self.cells = bin_window(self.X, self.sel, self.R, vctx.dim)
-        self.Xs = np.ascontiguousarray(self.X[self.cells[0]])  # in cell order
-
-    def strain(self, vctx, limit, t, vmax, out) -> None:
-        """Collective: the trigger strain of the owned solid rows into ``out`` (n_owned):
-        the window strain of the candidates (:data:`CANDIDATE`) at their last evaluation,
-        their own accumulated plastic strain where R = 0, else 0. ``t`` the time (s),
-        ``vmax`` the solid's largest speed (m/s, all ranks)."""
-        p, n = vctx.particles, vctx.particles.n_owned
-        material = np.maximum(p["material"][:n], 0)
-        R_row = self.radius_of[material]
-        eps = p["eps_p"][:n]
-        if "eps_p_geostatic" in p:  # the geostatic stage's does not count
-            eps = eps - p["eps_p_geostatic"][:n]
-        value, t_e, rate = (p[k][:n] for k in self.FIELDS)
-        cand = self.sel[:n] & (R_row > 0.0) & (eps > self.CANDIDATE * limit)
-        rate_now = rate * vmax
-        due = cand & ((rate_now == 0.0) | (value + rate_now * (t - t_e) >= limit))
-        rows = np.flatnonzero(due)
-        if global_any(vctx.comm, len(rows) > 0):  # the window's positions: collective
-            moved = self.halo.exchange({"x": p["x"][:n]}, shift_fields=("x",))["x"]
-        if len(rows):
-            x = np.ascontiguousarray(np.concatenate([p["x"][:n], moved]))
-            val = np.zeros(len(rows))
-            gain = np.zeros(len(rows))
-            window_strain(rows, self.X, x, *self.cells, self.Xs,
-                          np.ascontiguousarray(x[self.cells[0]]), self.R, vctx.dim, val, gain)
-            f = self.factor_of[material[rows]]
-            value[rows] = f * val
-            t_e[rows] = t
-            rate[rows] = 4.0 * f * gain
-        out[:] = np.where(self.sel[:n] & (R_row <= 0.0), eps, np.where(cand, value, 0.0))

@@ -144,8 +144,13 @@ class TLSPH:
         out[:, : a.shape[1]] = a
         return out
 
-    def setup(self, ctx):
-        """Initial state (fresh runs), correction matrices, halo of the fixed fields."""
+    def setup(self, ctx, edit=None):
+        """Initial state (fresh runs), correction matrices, halo of the fixed fields.
+
+        ``edit`` (:class:`parsph.coupling.view.ViewEdit`): ``ctx`` is the last set-up's
+        view less some rows (a phase change), so the pair factors are the last ones on
+        the entries that stay and only the rows that lost a neighbour get a new
+        correction matrix: the same values a set-up from scratch gives."""
         p, n, dim = ctx.particles, ctx.particles.n_owned, ctx.dim
         mat = p["material"][:n]
         solid = p["phase"][:n] == PHASE_SOLID
@@ -156,11 +161,17 @@ class TLSPH:
             self._initial_state(ctx, fresh)
         ctx.update_halo(["rho0"])
         self._masks(ctx)
-        clamped = kernels.correction_matrices(p["X"], self.vol, self.sel, n, ctx.indptr,
-                                              ctx.indices, ctx.h, dim,
-                                              self.num.correction_floor, p["L"])
-        self._stats["correction_clamped"] = global_sum(ctx.comm, clamped)
-        self.fp = kernels.pair_factors(p["X"], self.sel, n, ctx.indptr, ctx.indices, ctx.h, dim)
+        if edit is None:
+            rows, self.clamp = np.arange(n), np.zeros(n, dtype=np.uint8)
+            self.fp = kernels.pair_factors(p["X"], self.sel, n, ctx.indptr, ctx.indices, ctx.h,
+                                           dim)
+        else:
+            rows, self.clamp = edit.lost, self.clamp[edit.keep]
+            p["L"][:n] = edit.L
+            self.fp = self.fp[edit.entry]
+        kernels.correction_rows(rows, p["X"], self.vol, self.sel, ctx.indptr, ctx.indices,
+                                ctx.h, dim, self.num.correction_floor, p["L"], self.clamp)
+        self._stats["correction_clamped"] = global_sum(ctx.comm, int(self.clamp.sum()))
         if self.nl_strain is not None:
             self._setup_nonlocal(ctx)
         self._stress_terms(ctx)
