@@ -324,7 +324,8 @@ class WindowTrigger:
             window_spread(order, start, ncell, per, np.ascontiguousarray(v[order]), vctx.dim,
                           self.cell_of, spread)
             reach += dt * spread
-        due = cand & (np.isinf(reach) | (value + rate * reach >= limit))
+        with np.errstate(invalid="ignore"):  # rate 0 (never fitted) times reach inf
+            due = cand & (np.isinf(reach) | (value + rate * reach >= limit))
         rows = np.flatnonzero(due)
         if len(rows):
             x = np.ascontiguousarray(np.concatenate([p["x"][:n], moved["x"]]))
