@@ -67,27 +67,30 @@ def correction_matrices(X, vol, sel, n, indptr, indices, h, dim, floor, L):
     int
         Number of particles whose M needed the eigenvalue floor.
     """
+    fp = pair_factors(X, sel, n, indptr, indices, h, dim)
     clamped = 0
     A = np.zeros((3, 3))
     for i in range(n):
-        clamped += _correction_row(i, X, vol, sel, indptr, indices, h, dim, floor, L, A)
+        clamped += _correction_row(i, X, vol, sel, fp, indptr, indices, dim, floor, L, A)
     return clamped
 
 
 @njit(cache=True, error_model="numpy")
-def correction_rows(rows, X, vol, sel, indptr, indices, h, dim, floor, L, clamp):
-    """:func:`correction_matrices` of the given ``rows`` only (the rows whose lists
-    changed: the solid's view edited after a phase change); ``clamp[i]`` is set to
-    whether row ``i``'s M needed the floor."""
+def correction_rows(rows, X, vol, sel, fp, indptr, indices, dim, floor, L, clamp):
+    """:func:`correction_matrices` of the given ``rows`` only (all owned rows at a
+    set-up; after a phase change the rows whose lists changed), from the stored pair
+    factors ``fp`` (:func:`pair_factors`); ``clamp[i]`` is set to whether row ``i``'s M
+    needed the floor."""
     A = np.zeros((3, 3))
     for k in range(rows.shape[0]):
         i = rows[k]
-        clamp[i] = _correction_row(i, X, vol, sel, indptr, indices, h, dim, floor, L, A)
+        clamp[i] = _correction_row(i, X, vol, sel, fp, indptr, indices, dim, floor, L, A)
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _correction_row(i, X, vol, sel, indptr, indices, h, dim, floor, L, A):
-    """L_i of :func:`correction_matrices` into ``L[i]`` (``A``: 3 x 3 scratch); 1 if
+def _correction_row(i, X, vol, sel, fp, indptr, indices, dim, floor, L, A):
+    """L_i of :func:`correction_matrices` into ``L[i]`` (``A``: 3 x 3 scratch), the
+    kernel factor of each pair read from ``fp`` (the value :func:`_factor` gives); 1 if
     M_i needed the floor, else 0."""
     for a in range(3):
         for b in range(3):
@@ -101,10 +104,7 @@ def _correction_row(i, X, vol, sel, indptr, indices, h, dim, floor, L, A):
         j = indices[p]
         if not sel[j]:
             continue
-        r2 = 0.0
-        for a in range(dim):
-            r2 += (X[i, a] - X[j, a]) ** 2
-        f = -_factor(math.sqrt(r2), h, dim) * vol[j]
+        f = -np.float64(fp[p]) * vol[j]
         for a in range(dim):
             for b in range(dim):
                 A[a, b] += f * (X[i, a] - X[j, a]) * (X[i, b] - X[j, b])

@@ -169,8 +169,8 @@ class TLSPH:
             rows, self.clamp = edit.lost, self.clamp[edit.keep]
             p["L"][:n] = edit.L
             self.fp = self.fp[edit.entry]
-        kernels.correction_rows(rows, p["X"], self.vol, self.sel, ctx.indptr, ctx.indices,
-                                ctx.h, dim, self.num.correction_floor, p["L"], self.clamp)
+        kernels.correction_rows(rows, p["X"], self.vol, self.sel, self.fp, ctx.indptr,
+                                ctx.indices, dim, self.num.correction_floor, p["L"], self.clamp)
         self._stats["correction_clamped"] = global_sum(ctx.comm, int(self.clamp.sum()))
         if self.nl_strain is not None:
             self._setup_nonlocal(ctx)
