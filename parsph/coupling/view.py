@@ -31,13 +31,17 @@ VIEW_FIELDS = {"L": (3, 3), "Q": (3, 3)}
 @dataclass
 class ViewEdit:
     """What a view edited after a phase change (:meth:`SolidView.without_fluidised`)
-    keeps of the last one, for the solid's set-up
-    (:meth:`parsph.solid.stage.TLSPH.setup`): which of the last view's owned rows stay
-    (``keep``), which of its list entries (``entry``), the new rows that lost a
-    neighbour (``lost``: the only correction matrices that change) and the correction
-    matrices of the rows that stay (``L``)."""
+    keeps of the last one: which of the last view's owned rows stay (``keep``), their
+    main-set rows (``rows``), the edited reference halo and lists; for the solid's
+    set-up (:meth:`parsph.solid.stage.TLSPH.setup`) which of the list entries stay
+    (``entry``), the new rows that lost a neighbour (``lost``: the only correction
+    matrices that change) and the correction matrices of the rows that stay (``L``)."""
 
     keep: np.ndarray
+    rows: np.ndarray
+    halo: Halo
+    indptr: np.ndarray
+    indices: np.ndarray
     entry: np.ndarray
     lost: np.ndarray
     L: np.ndarray
@@ -70,34 +74,30 @@ class SolidView:
         What the TLSPH stage runs on.
     rows : ndarray of int
         Main-set row of each owned solid row (valid after :meth:`locate`).
+    edit : ViewEdit or None
+        What this view kept of the last one, if it is that one edited.
     """
 
-    def __init__(self, ctx, main_only=(), carried=(), carry=None, _edit=None):
+    def __init__(self, ctx, main_only=(), carried=(), carry=None, edit=None):
         p = ctx.particles
         n = p.n_owned
         self.main = ctx
-        if _edit is None:
-            rows = np.flatnonzero(p["phase"][:n] == PHASE_SOLID)
-        else:
-            rows, halo, indptr, indices, self.edit = _edit
+        self.edit = edit  # (ViewEdit: this view is ``carry`` edited, see without_fluidised)
+        rows = np.flatnonzero(p["phase"][:n] == PHASE_SOLID) if edit is None else edit.rows
         # every field of the main set but ``main_only`` (the fluid's and the coupling's,
         # which TLSPH never reads), and the view's own
         fields = {k: a[:n][rows] for k, a in p.data.items() if k not in main_only}
         missing = [k for k in carried if k not in fields]
-        if missing and _edit is not None:  # the state only the last view held
-            fields.update({k: carry.ctx.particles[k][: carry.n][self.edit.keep]
-                           for k in missing})
-        elif missing:  # the state only the last view held: taken over by id
-            fields.update(_take_over(carry, p["id"][:n][rows], missing))
+        if missing:  # the state only the last view held: its rows that stay, or by id
+            fields.update({k: carry.ctx.particles[k][: carry.n][edit.keep] for k in missing}
+                          if edit is not None else _take_over(carry, p["id"][:n][rows], missing))
         fields.update({k: np.zeros((rows.size,) + shape) for k, shape in VIEW_FIELDS.items()})
         sp = ParticleSet(ctx.dim, fields)
-        if _edit is None:
-            halo = Halo.build(ctx.comm, ctx.rcb_ref, sp["X"][: sp.n_owned], ctx.radius,
-                              ctx.box)
+        halo = Halo.build(ctx.comm, ctx.rcb_ref, sp["X"][: sp.n_owned], ctx.radius, ctx.box) \
+            if edit is None else edit.halo
         sp.set_halo(halo.exchange(sp.owned_fields(), shift_fields=("x", "X")))
-        if _edit is None:
-            indptr, indices = build_csr(sp["X"], sp.n_owned, ctx.radius)
-            self.edit = None
+        indptr, indices = build_csr(sp["X"], sp.n_owned, ctx.radius) if edit is None \
+            else (edit.indptr, edit.indices)
         self.ctx = SolidContext(
             scene=ctx.scene, comm=ctx.comm, particles=sp, box=ctx.box, dim=ctx.dim, d=ctx.d,
             h=ctx.h, radius=ctx.radius, rcb=ctx.rcb_ref, halo=halo, indptr=indptr,
@@ -133,10 +133,10 @@ class SolidView:
         renumber[self.n:][kept] = int(keep.sum()) + np.arange(int(kept.sum()))
         indptr, indices, entry, lost = without_rows(self.ctx.indptr, self.ctx.indices, keep,
                                                     renumber)
-        edit = ViewEdit(keep=keep, entry=entry, lost=np.flatnonzero(lost),
+        edit = ViewEdit(keep=keep, rows=self.rows[keep], halo=halo, indptr=indptr,
+                        indices=indices, entry=entry, lost=np.flatnonzero(lost),
                         L=old["L"][: self.n][keep])
-        return SolidView(ctx, main_only, carried, self,
-                         _edit=(self.rows[keep], halo, indptr, indices, edit))
+        return SolidView(ctx, main_only, carried, self, edit)
 
     def state_to(self, names) -> tuple:
         """Put the named fields of the view back in the main set (owned solid rows; zero
