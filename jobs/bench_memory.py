@@ -260,6 +260,27 @@ def run_worker(ranks, particles, steps, settings=()):
     return json.loads(worker_line(out.stdout, "MEMORY ", f"memory worker ({' '.join(cmd)})"))
 
 
+def write_record(runs, args) -> None:
+    """The figures record ``bench_memory`` (``jobs/figures.py``; written where
+    ``$PARSPH_FIGURES`` says): the figures of the largest ``--particles`` run, each as
+    ``KEY_rR`` for its rank count R, and ``speedup_1_to_2`` when both ran."""
+    from figures import record as record_figures
+
+    largest = max(args.particles)
+    fig = {}
+    for (ranks, particles), (n, res) in sorted(runs.items()):
+        if particles == largest:
+            fig["particles"] = n
+            fig.update({f"{k}_r{ranks}": v for k, v in res.items()
+                        if isinstance(v, (int, float))})
+    if "s_per_step_r1" in fig and "s_per_step_r2" in fig:
+        fig["speedup_1_to_2"] = fig["s_per_step_r1"] / fig["s_per_step_r2"]
+    ranks = " ".join(str(r) for r in args.ranks)
+    record_figures("bench_memory", fig, ranks=max(args.ranks), source="jobs/bench_memory.py",
+                   command=f"python jobs/bench_memory.py --particles {int(largest)} --ranks "
+                           f"{ranks} --steps {args.steps}")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--particles", type=float, nargs="+", default=[1e5],
@@ -291,6 +312,7 @@ def main():
             two = runs[(2, particles)][1]
             record(args.csv, "memory_coupled_3d_scaling", "parsph", 3, n, 2,
                    {"speedup_1_to_2": one["s_per_step"] / two["s_per_step"]})
+    write_record(runs, args)
 
 
 if __name__ == "__main__":

@@ -15,24 +15,45 @@ d = a / n, centres at (k + 1/2) d in both codes) with
 - SPlisHSPlasH 2.19 (``pysplishsplash`` from PyPI; C++ with OpenMP, float32): IISPH
   (``simulationMethod`` 3, relaxed Jacobi to ``IISPH.maxError`` = 0.01 % mean density
   error, 2-100 sweeps), standard CFL step with ``cflFactor`` 0.25, standard viscosity
-  nu, the box a static rigid body (``UnitBox.obj`` of the wheel's data): Akinci et al.
-  (2012) boundary particles sampled on the box, which then passes through the centres of
-  parsph's first wall layer (``--boundary akinci2012``, default), or Bender et al. (2019)
-  volume maps with the box at parsph's wall planes (``bender2019``; no boundary
-  particles); on ``--threads`` OpenMP threads (default one),
+  nu, the box a static rigid body (``UnitBox.obj`` of the wheel's data) with Akinci et
+  al. (2012) boundary particles sampled on it, its surface ``--wall-offset`` d (0.6)
+  outside parsph's wall planes (:func:`boundary_box`); on ``--threads`` OpenMP threads
+  (default one),
 
 alternately, ``--repeats`` times each (noise between identical runs reaches 25 %), and
 prints one row per code, core count and tolerance (medians): fluid and total particles,
 steps, run wall time, fluid particle-steps/s per core, pressure iterations per step, the
-largest density error parsph's solves left (``density_error_max``, relative), the front (the
-largest x of a fluid particle, m) at the end, and the ratios parsph / SPlisHSPlasH of the
+largest density error parsph's solves left (``density_error_max``, relative), where the
+flow is at the end (:func:`flow_extent`: ``front``, the largest x of a fluid particle;
+``front_p999``, the x that 0.1 % of the fluid is beyond; ``top``, the largest height; m)
+and the two codes' flows against each other (``front_p999_vs_splishsplash``, ``top_vs_
+splishsplash``: relative differences; the ratios of cost mean little unless these are
+small), SPlisHSPlasH's density at its first step (``initial_density_max``, the largest,
+and ``initial_density_floor``, the mean of the fluid's lowest layer, over rho0: the
+boundary's placement, below), and the ratios parsph / SPlisHSPlasH of the
 cost of a fluid particle-step on one core (``ratio_vs_splishsplash``; below 1: parsph is
 cheaper) and of the core-seconds to the end time (``core_time_ratio_vs_splishsplash``;
 the two codes take different steps).
 
+Where the peer's wall goes (docs/benchmarks.md, "SPlisHSPlasH, the same flow"). An
+Akinci boundary is one layer of particles; the fluid's first layer feels it as a wall
+only approximately. With the box through the centres of parsph's first wall layer (0.5 d
+outside its wall planes, the fluid's first layer one d from the boundary particles) the
+peer's fluid starts over-dense where it touches the box: 1.063 rho0 on the floor, 1.165
+in the corners, at n = 16. Its PPE removes that density error within its first step, a
+kick that grows as 1 / dt: the column rose 4.6 mm in its first 0.04 s while parsph's fell,
+the toe shot ahead, the front at 0.1 s was 0.264 m against parsph's 0.239, and at
+``cflFactor`` 0.1 the run blew up. At 0.6 d the first layer starts at 0.999 rho0 (corners
+0.988); the two flows then agree (n = 16: ``front_p999`` 0.2392 against parsph's 0.2368,
+``top`` 0.2504 against 0.2471; 0.2357 and 0.2505 at ``cflFactor`` 0.1) and the peer's
+step no longer explodes at a smaller ``cflFactor``. ``initial_density_max`` shows what a
+placement does. (SPlisHSPlasH's volume maps, Bender et al. 2019, were tried and left out:
+with the box at parsph's wall planes their first fluid layer started at 2.4 rho0, at half
+a d further out at 1.2, finer maps alike.)
+
 Run wall time, the same rule for both codes: from the end of step 1 to the end of step N,
 scaled by N / (N - 1), the N steps at the mean cost of steps 2..N. SPlisHSPlasH samples
-its boundary (or builds its volume map) inside its run call, before the first step, which
+its boundary inside its run call, before the first step, which
 is why step 1 is left out; parsph's ends of steps are the ``elapsed_s`` column of its
 stats.csv (rank 0's clock; every per-step cost counted: stats, checks, partition). parsph's
 own timer ("done ... s wall": particle build, output and steps) is printed as
@@ -70,6 +91,7 @@ from benchlib import mpirun_parsph, record, worker_line  # noqa: E402
 A, RHO, NU, G = 0.146, 1000.0, 1.0e-6, 9.81  # as parsph/scenes/dam_break.toml
 TANK_LENGTH, TANK_DEPTH, TANK_HEIGHT = 4.0 * A, A, 0.35
 WALL_LAYERS = 3  # parsph's tank: ceil(2h / d) with h = 1.2 d
+WALL_OFFSET = 0.6  # SPlisHSPlasH's box outside parsph's wall planes (d; the docstring)
 BENCHMARK = "iisph_dam_break_3d_vs_splishsplash"
 RESULT_TAG = "SPLISHSPLASH_RESULT "
 
@@ -128,19 +150,25 @@ base.initSimulation()
 sim = sph.Simulation.getCurrent()
 ts = sim.getTimeStep()
 sweeps_of = getattr(ts, "getNumIterations", lambda: -1)
-stamps, sweeps = [], []
+fluid = sim.getFluidModel(0)
+stamps, sweeps, first = [], [], {}
 
 
 def after_step():
     stamps.append(time.perf_counter())
     sweeps.append(sweeps_of())
+    if len(stamps) == 1:  # the density the boundary's placement gave (out of the clock)
+        rho0, d = fluid.getDensity0(), 2.0 * sim.getParticleRadius()
+        rho = [fluid.getDensity(i) / rho0 for i in range(fluid.numActiveParticles())]
+        floor = [r for i, r in enumerate(rho) if float(fluid.getPosition(i)[1]) < d]
+        first.update(initial_density_max=max(rho), initial_density_floor=sum(floor) / len(floor))
+        stamps[0] = time.perf_counter()
 
 
 base.setTimeStepCB(after_step)
 t1 = time.perf_counter()
 base.runSimulation()
 t2 = time.perf_counter()
-fluid = sim.getFluidModel(0)
 x = [[float(c) for c in fluid.getPosition(i).ravel()] for i in range(fluid.numActiveParticles())]
 boundary = sim.getValueInt(sim.BOUNDARY_HANDLING_METHOD)
 walls = sum(sim.getBoundaryModel(i).numberOfParticles()
@@ -154,7 +182,7 @@ print("SPLISHSPLASH_RESULT " + json.dumps(dict(
     first_step_s=(stamps[0] - t1) if stamps else None,
     later_steps_s=(stamps[-1] - stamps[0]) if stamps else None, run_call_s=t2 - t1,
     sweeps_mean=sum(sweeps) / max(len(sweeps), 1), sweeps_max=max(sweeps, default=0),
-    front=max((p[0] for p in x), default=float("nan")),
+    x=[[round(c, 7) for c in p] for p in x], **first,
     outside=sum(any(p[k] < lo[k] or p[k] > hi[k] for k in range(3)) for p in x))), flush=True)
 # skip the C++ teardown (timing tables; a crash there would only hide the result)
 os._exit(0)
@@ -203,28 +231,36 @@ def block_axes(start, end, radius):
             for s, e in zip(start, end)]
 
 
-def boundary_box(n: int, boundary: str):
-    """Inner corners (x, y up, z) of SPlisHSPlasH's box. Akinci et al. (2012) boundary
-    particles are sampled on the surface, which then passes through the centres of
-    parsph's first wall layer (d/2 outside parsph's wall planes); a volume map's wall is
-    the surface itself, at parsph's wall planes."""
-    o = 0.5 * A / n if boundary == "akinci2012" else 0.0
+def boundary_box(n: int, wall_offset: float = WALL_OFFSET):
+    """Inner corners (x, y up, z) of SPlisHSPlasH's box: its surface, on which the Akinci et
+    al. (2012) boundary particles are sampled, ``wall_offset`` d outside parsph's wall
+    planes (0.5: through the centres of parsph's first wall layer; 0.6, the default: where
+    the peer's fluid starts at rest density, the module's docstring)."""
+    o = wall_offset * A / n
     return [-o, -o, -o], [TANK_LENGTH + o, TANK_HEIGHT, TANK_DEPTH + o]
 
 
-BOUNDARY_METHODS = {"akinci2012": 0, "bender2019": 2}
+def flow_extent(x, up: int) -> dict:
+    """Where a flow is: ``front``, the largest x (axis 0) of a fluid particle; ``front_p999``,
+    the x that 0.1 % of the fluid is beyond (a leading particle or two that left the flow do
+    not move it); ``top``, the largest coordinate on axis ``up`` (m)."""
+    import numpy as np
+
+    x = np.asarray(x, dtype=float)
+    return {"front": float(x[:, 0].max()), "front_p999": float(np.quantile(x[:, 0], 0.999)),
+            "top": float(x[:, up].max())}
 
 
-def splishsplash_scene(n: int, boundary: str, mesh: str, overrides=()) -> dict:
+def splishsplash_scene(n: int, mesh: str, overrides=(), wall_offset=WALL_OFFSET) -> dict:
     """The SPlisHSPlasH scene (JSON data) of the 3D dam break at particleRadius d / 2;
     ``overrides``: ``KEY=VALUE`` of its ``Configuration`` (``IISPH.maxError=0.1``; the
     value read as JSON, else as a string)."""
     d = A / n
-    lo, hi = boundary_box(n, boundary)
+    lo, hi = boundary_box(n, wall_offset)
     start, end = fluid_block(n)
     config = {"particleRadius": 0.5 * d, "simulationMethod": 3, "gravitation": [0.0, -G, 0.0],
               "timeStepSize": 0.001, "cflMethod": 1, "cflFactor": 0.25,
-              "cflMaxTimeStepSize": 0.005, "boundaryHandlingMethod": BOUNDARY_METHODS[boundary],
+              "cflMaxTimeStepSize": 0.005, "boundaryHandlingMethod": 0,
               "enablePartioExport": False, "enableVTKExport": False,
               "IISPH": {"minIterations": 2, "maxIterations": 100, "maxError": 0.01}}
     for item in overrides:
@@ -319,14 +355,15 @@ def peer_env(threads):
     return env
 
 
-def run_splishsplash(py, work, tag, scene, end, threads, n):
-    """One SPlisHSPlasH run of ``scene`` (JSON data) in ``work``; its figures."""
+def run_splishsplash(py, work, tag, scene, end, threads, n, wall_offset):
+    """One SPlisHSPlasH run of ``scene`` (JSON data, its box ``wall_offset`` d outside
+    parsph's wall planes) in ``work``; its figures."""
     path = os.path.join(work, f"splishsplash_{tag}.json")
     with open(path, "w") as fh:
         json.dump(scene, fh, indent=1)
     script = os.path.join(work, "dam_break_3d_splishsplash.py")
     d = A / n
-    lo, hi = boundary_box(n, "akinci2012")  # the larger of the two boxes
+    lo, hi = boundary_box(n, wall_offset)
     box = [[c - d for c in lo], [c + d for c in hi]]  # a fluid particle beyond: escaped
     cmd = [py, script, path, os.path.join(work, f"splishsplash_{tag}"), repr(end),
            json.dumps(box)]
@@ -355,7 +392,9 @@ def run_splishsplash(py, work, tag, scene, end, threads, n):
                 particles=res["fluid"] + res["boundary_particles"], steps=steps,
                 t_end=res["t"], run_s=run_s, process_s=wall,
                 pressure_iterations=res["sweeps_mean"], pressure_iterations_max=res["sweeps_max"],
-                front=res["front"], info=res)
+                initial_density_max=res["initial_density_max"],
+                initial_density_floor=res["initial_density_floor"],
+                **flow_extent(res.pop("x"), up=1), info=res)
 
 
 def run_parsph(ranks, scene, out, extra=()):
@@ -389,15 +428,48 @@ def read_parsph(res):
     """Add the particle counts, PPE iterations and the end front of a parsph run."""
     import numpy as np
 
-    from parsph.io import read_stats
+    from parsph.core.particles import PHASE_FLUID
+    from parsph.io import read_frame, read_stats
 
     stats = read_stats(os.path.join(res["out"], "stats.csv"))
     res.update(particles=int(stats["n_particles"][0]), fluid=int(stats["n_fluid"][0]),
                pressure_iterations=float(np.median(stats["ppe_iterations"])),
                pressure_iterations_max=int(np.max(stats["ppe_iterations"])),
-               density_error_max=float(np.max(stats["ppe_density_error"])),
-               front=float(stats["front"][-1]))
+               density_error_max=float(np.max(stats["ppe_density_error"])))
+    last = read_frame(os.path.join(res["out"], "particles.h5"))
+    res.update(flow_extent(last["x"][last["phase"] == PHASE_FLUID], up=2))
     return res
+
+
+def write_record(rows, args, n) -> None:
+    """The figures record ``bench_splishsplash`` (``jobs/figures.py``; written where
+    ``$PARSPH_FIGURES`` says) from the rows of one rank count's runs: parsph at its default
+    tolerance (``*_default``) and at the peer's (``*_peer_eta``), beside SPlisHSPlasH's."""
+    from figures import record
+
+    peer = next(r for r in rows if r["code"] == "splishsplash")
+    fig = {"fluid": peer["fluid"], "n": n, "steps_peer": peer["steps"],
+           "run_s_peer": peer["run_s"], "front_peer": peer["front"],
+           "front_p999_peer": peer["front_p999"], "top_peer": peer["top"],
+           "initial_density_max_peer": peer["initial_density_max"],
+           "initial_density_floor_peer": peer["initial_density_floor"],
+           "wall_offset": args.wall_offset}
+    for row in rows:
+        if row["code"] != "parsph" or row["cores"] != peer["cores"]:
+            continue
+        tag = ("default" if row["ppe_density_error"] == 0.0 else "peer_eta"
+               if row["ppe_density_error"] == peer["ppe_density_error"] else None)
+        if tag:
+            fig.update({f"{k}_{tag}": row[k] for k in (
+                "steps", "run_s", "front", "front_p999", "top", "ratio_vs_splishsplash",
+                "core_time_ratio_vs_splishsplash", "front_vs_splishsplash",
+                "front_p999_vs_splishsplash", "top_vs_splishsplash")})
+    command = (f"python jobs/bench_splishsplash.py --fluid-particles {2 * n ** 3} --end-time "
+               f"{args.end_time:g} --repeats {args.repeats} --density-error {args.density_error}"
+               + (f" --wall-offset {args.wall_offset:g}" if args.wall_offset != WALL_OFFSET
+                  else ""))
+    record("bench_splishsplash", fig, ranks=peer["cores"], source="jobs/bench_splishsplash.py",
+           command=command)
 
 
 def main():
@@ -412,8 +484,10 @@ def main():
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--ranks", default="1", help="parsph rank counts, e.g. 1,2")
     ap.add_argument("--threads", type=int, default=1, help="SPlisHSPlasH's OpenMP threads")
-    ap.add_argument("--boundary", choices=sorted(BOUNDARY_METHODS), default="akinci2012",
-                    help="SPlisHSPlasH's boundary handling")
+    ap.add_argument("--wall-offset", type=float, default=WALL_OFFSET, metavar="D",
+                    help="SPlisHSPlasH's box this many particle sizes outside parsph's wall "
+                         "planes (0.5: through parsph's first wall layer, where the peer's "
+                         "fluid starts 6 %% over-dense; the docstring)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="extra parsph scene override (e.g. fluid.cfl=0.2)")
     ap.add_argument("--peer-set", action="append", default=[], metavar="KEY=VALUE",
@@ -437,7 +511,10 @@ def main():
     with open(os.path.join(work, "dam_break_3d_splishsplash.py"), "w") as fh:
         fh.write(SPLISHSPLASH_SCRIPT)
     shutil.copy(mesh, os.path.join(work, "UnitBox.obj"))
-    peer_scene = splishsplash_scene(n, args.boundary, "UnitBox.obj", args.peer_set)
+    if not 0.0 <= args.wall_offset <= 2.0:
+        sys.exit(f"--wall-offset {args.wall_offset:g}: give the peer's box offset in particle "
+                 f"sizes, between 0 and 2 (0.6 starts its fluid at rest density)")
+    peer_scene = splishsplash_scene(n, "UnitBox.obj", args.peer_set, args.wall_offset)
     iisph = peer_scene["Configuration"]["IISPH"]
     etas, peer_eta = density_errors(args.density_error, iisph), density_errors("peer", iisph)[0]
     scene = os.path.join(work, "dam_break_3d.toml")
@@ -450,7 +527,8 @@ def main():
     for rep in range(args.repeats):
         for code, c, eta in [("splishsplash", args.threads, math.nan)] + [
                 ("parsph", r, e) for r in ranks for e in etas]:
-            res = (run_splishsplash(py, work, rep, peer_scene, args.end_time, args.threads, n)
+            res = (run_splishsplash(py, work, rep, peer_scene, args.end_time, args.threads, n,
+                                    args.wall_offset)
                    if code == "splishsplash" else
                    run_parsph(c, scene, os.path.join(work, f"parsph_{c}_{eta:g}_{rep}"),
                               [*args.set, f"fluid.ppe_density_error={eta!r}"]))
@@ -475,7 +553,9 @@ def main():
                      "pressure_iterations": first["pressure_iterations"],
                      "pressure_iterations_max": first["pressure_iterations_max"],
                      "density_error_max": first.get("density_error_max", math.nan),
-                     "front": first["front"]})
+                     **{k: first[k] for k in ("front", "front_p999", "top")},
+                     **{k: first.get(k, math.nan)  # the peer's: its boundary's placement
+                        for k in ("initial_density_max", "initial_density_floor")}})
     ref = next(x for x in rows if x["code"] == "splishsplash")
     info = samples[("splishsplash", args.threads, math.nan)][0]["info"]
     for row in rows:
@@ -483,16 +563,22 @@ def main():
                                                   ref["fluid_particle_steps_per_s_per_core"])
         row["core_time_ratio_vs_splishsplash"] = (row["run_s"] * row["cores"]
                                                   / (ref["run_s"] * ref["cores"]))
+        for key in ("front", "front_p999", "top"):  # the same flow?
+            row[f"{key}_vs_splishsplash"] = row[key] / ref[key] - 1.0
         if row["fluid"] != ref["fluid"]:
             print(f"# warning: {row['code']} has {row['fluid']} fluid particles, SPlisHSPlasH "
                   f"{ref['fluid']}", file=sys.stderr, flush=True)
         metrics = {k: v for k, v in row.items() if k not in ("code", "cores", "particles")}
         record(args.csv, BENCHMARK, row["code"], 3, row["particles"], row["cores"], metrics)
+    if ref["cores"] in ranks:
+        write_record(rows, args, n)
     max_error = info["max_error"] if info["max_error"] is not None else float("nan")
     print(f"# column {n} x {n} x {2 * n} at d = a/{n} = {d:.6g} m (SPlisHSPlasH particleRadius "
           f"{info['radius']:.6g} m, IISPH maxError {max_error:.3g} %, cflFactor "
-          f"{info['cfl']:.3g}, boundary {args.boundary}: {info['boundary_particles']} "
-          f"particles; parsph walls: {WALL_LAYERS} layers), end time {args.end_time} s; "
+          f"{info['cfl']:.3g}, Akinci boundary {args.wall_offset:g} d outside parsph's walls: "
+          f"{info['boundary_particles']} particles, its fluid at its first step "
+          f"{info['initial_density_max']:.4f} rho0 at most, {info['initial_density_floor']:.4f} "
+          f"on the floor; parsph walls: {WALL_LAYERS} layers), end time {args.end_time} s; "
           f"medians of {args.repeats} alternating run(s); load average {load:.2f} at start")
     print("# pressure_iterations: parsph median GMRES iterations of the PPE, SPlisHSPlasH "
           "mean Jacobi sweeps; ratio_vs_splishsplash: cost of a fluid particle-step per core; "

@@ -215,6 +215,28 @@ def run_parsph(ranks, particles, steps):
             float(line[5]))
 
 
+def write_record(rows, args) -> None:
+    """The figures record ``bench_tlsph`` (``jobs/figures.py``; written where
+    ``$PARSPH_FIGURES`` says) from the rows of a run of both codes: per rank count R
+    parsph's and LAMMPS's seconds per step (``parsph_s_per_step_rR``, ``lammps_...``) and
+    their ratio per particle-step (``ratio_rR``; above 1: parsph is faster)."""
+    from figures import record
+
+    fig = {}
+    for (code, r), row in sorted(rows.items()):
+        fig[f"{code}_s_per_step_r{r}"] = row["s_per_step"]
+        fig[f"{code}_bytes_per_particle_r{r}"] = row["bytes_per_particle"]
+        if code == "parsph":
+            fig["particles"], fig["neighbours"] = row["particles"], row["neighbours_per_particle"]
+            if row["ratio_vs_lammps"] != "":
+                fig[f"ratio_r{r}"] = row["ratio_vs_lammps"]
+            if row["speedup_1_to_2"] != "":
+                fig["speedup_1_to_2"] = row["speedup_1_to_2"]
+    record("bench_tlsph", fig, ranks=max(r for _, r in rows), source="jobs/bench_tlsph.py",
+           command=f"python jobs/bench_tlsph.py --particles {args.particles:g} --repeats "
+                   f"{args.repeats} --ranks {args.ranks}")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--particles", type=float, default=1e5)
@@ -288,6 +310,8 @@ def main():
     print("# one row per code and rank count: medians of "
           f"{args.repeats} alternating runs each, of each run's mean whole step (parsph: "
           "stats.csv elapsed_s after the first step; LAMMPS: Loop time / steps)")
+    if ("lammps", ranks[0]) in rows and ("parsph", ranks[0]) in rows:
+        write_record(rows, args)
     writer = csv.DictWriter(sys.stdout, COLUMNS)
     writer.writeheader()
     writer.writerows(table)

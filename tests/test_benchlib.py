@@ -68,12 +68,89 @@ def test_splishsplash_density_errors_read_the_peers_tolerance():
     percentage) as a fraction, 0 is parsph's rtol alone; anything else is refused."""
     from bench_splishsplash import density_errors, splishsplash_scene
 
-    iisph = splishsplash_scene(5, "akinci2012", "UnitBox.obj")["Configuration"]["IISPH"]
+    iisph = splishsplash_scene(5, "UnitBox.obj")["Configuration"]["IISPH"]
     assert density_errors("peer,1e-6,0", iisph) == [pytest.approx(1e-4), 1e-6, 0.0]
     assert density_errors("peer", {"maxError": 0.1}) == [pytest.approx(1e-3)]
     for bad in ("1", "-1e-4", "tight", "peer,,0"):
         with pytest.raises(SystemExit, match="--density-error"):
             density_errors(bad, iisph)
+
+
+def test_splishsplash_flow_extent_is_not_moved_by_a_leading_particle():
+    """jobs/bench_splishsplash.py compares where the two flows are: one particle that left
+    the flow moves ``front`` (the largest x) but not ``front_p999``; ``top`` is read on the
+    axis named up (parsph: z, SPlisHSPlasH: y)."""
+    import numpy as np
+
+    from bench_splishsplash import boundary_box, flow_extent
+
+    x = np.zeros((4000, 3))
+    x[:, 0] = np.linspace(0.0, 0.2, 4000)
+    x[:, 2] = np.linspace(0.0, 0.1, 4000)
+    base = flow_extent(x, up=2)
+    x[-1, 0] = 0.5
+    moved = flow_extent(x, up=2)
+    assert moved["front"] == 0.5 and base["front"] == pytest.approx(0.2)
+    assert moved["front_p999"] == pytest.approx(base["front_p999"], rel=1e-3)
+    assert base["top"] == pytest.approx(0.1) and flow_extent(x[:, [0, 2, 1]], up=1) == moved
+    lo, hi = boundary_box(10, 0.6)  # the peer's box 0.6 d outside parsph's wall planes
+    assert lo[0] == pytest.approx(-0.6 * 0.146 / 10) and hi[1] == pytest.approx(0.35)
+
+
+def test_splishsplash_record_keeps_both_tolerances(tmp_path, monkeypatch):
+    """jobs/bench_splishsplash.py writes its own figures record: parsph at its default
+    tolerance and at the peer's beside SPlisHSPlasH's, on the peer's core count only."""
+    import argparse
+    import json
+
+    from bench_splishsplash import write_record
+
+    monkeypatch.setenv("PARSPH_FIGURES", str(tmp_path))
+    keys = ("steps", "run_s", "front", "front_p999", "top", "ratio_vs_splishsplash",
+            "core_time_ratio_vs_splishsplash", "front_vs_splishsplash",
+            "front_p999_vs_splishsplash", "top_vs_splishsplash")
+    peer = dict({k: 1.0 for k in keys}, code="splishsplash", cores=1, fluid=24334,
+                ppe_density_error=1e-4, initial_density_max=1.02, initial_density_floor=0.99)
+    rows = [peer] + [dict({k: 2.0 + eta for k in keys}, code="parsph", cores=c,
+                          ppe_density_error=eta) for c in (1, 2) for eta in (1e-4, 0.0)]
+    args = argparse.Namespace(wall_offset=0.6, end_time=0.1, repeats=3, density_error="peer,0")
+    write_record(rows, args, 23)
+    rec = json.loads((tmp_path / "bench_splishsplash.json").read_text())
+    fig = rec["figures"]
+    assert fig["steps_peer"] == 1.0 and fig["steps_default"] == 2.0
+    assert fig["core_time_ratio_vs_splishsplash_peer_eta"] == pytest.approx(2.0001)
+    assert fig["initial_density_max_peer"] == 1.02 and rec["ranks"] == 1
+    assert "--fluid-particles 24334" in rec["command"] and "venv" not in rec["command"]
+
+
+def test_tlsph_and_memory_jobs_write_their_records(tmp_path, monkeypatch):
+    """jobs/bench_tlsph.py and jobs/bench_memory.py write their own figures records: per
+    rank count, from the rows they print (no figure typed in by hand)."""
+    import argparse
+    import json
+
+    import bench_memory
+    import bench_tlsph
+
+    monkeypatch.setenv("PARSPH_FIGURES", str(tmp_path))
+    rows = {(code, r): {"s_per_step": s, "bytes_per_particle": 1000.0, "particles": 97336,
+                        "neighbours_per_particle": 53.0,
+                        "ratio_vs_lammps": (0.5 / s if code == "parsph" else 1.0),
+                        "speedup_1_to_2": (2.0 if code == "parsph" and r == 2 else "")}
+            for code, r, s in (("parsph", 1, 0.14), ("parsph", 2, 0.07), ("lammps", 1, 0.5),
+                               ("lammps", 2, 0.25))}
+    bench_tlsph.write_record(rows, argparse.Namespace(particles=1e5, repeats=3, ranks="1,2"))
+    fig = json.loads((tmp_path / "bench_tlsph.json").read_text())["figures"]
+    assert fig["ratio_r1"] == pytest.approx(0.5 / 0.14) and fig["speedup_1_to_2"] == 2.0
+    assert fig["lammps_s_per_step_r2"] == 0.25 and fig["particles"] == 97336
+
+    runs = {(2, 1e6): (996454, {"s_per_step": 8.0, "bytes_per_particle_peak_rss": 1900.0}),
+            (2, 1e5): (112761, {"s_per_step": 0.5, "bytes_per_particle_peak_rss": 4000.0})}
+    bench_memory.write_record(runs, argparse.Namespace(particles=[1e5, 1e6], ranks=[2], steps=4))
+    rec = json.loads((tmp_path / "bench_memory.json").read_text())
+    assert rec["figures"] == {"particles": 996454, "s_per_step_r2": 8.0,
+                              "bytes_per_particle_peak_rss_r2": 1900.0}
+    assert rec["ranks"] == 2 and "--particles 1000000 --ranks 2" in rec["command"]
 
 
 def test_overhead_fit_recovers_the_fixed_cost_and_the_slope():

@@ -47,6 +47,60 @@ def bin_window(X, sel, R, dim):
     return rows[o].astype(np.int64), start, lo, float(cell), ncell, per
 
 
+def rows_near(X, points, R, box) -> np.ndarray:
+    """The rows of ``X`` (n, dim) within R of one of ``points`` (m, dim), periodic axes of
+    ``box`` by the minimum image (R below half a periodic length: only the nearest image
+    of a point can reach a row), as a boolean mask; in O(n + m + pairs near) time and
+    memory (:func:`mark_near`)."""
+    n, dim = X.shape
+    near = np.zeros(n, dtype=np.bool_)
+    if not n or not len(points):
+        return near
+    shifts = box.image_shifts()
+    P = (np.asarray(points, dtype=np.float64)[None, :, :] + shifts[:, None, :]).reshape(-1, dim)
+    order, start, lo, cell, ncell, _ = bin_window(X, np.ones(n, dtype=bool), R, dim)
+    mark_near(np.ascontiguousarray(X, dtype=np.float64), np.ascontiguousarray(P), float(R),
+              dim, order, start, lo, cell, ncell, near)
+    return near
+
+
+@njit(cache=True)
+def mark_near(X, P, R, dim, order, start, lo, cell, ncell, near):
+    """Set ``near[r]`` for every row r of ``X`` (n, dim) within R of a point of ``P``
+    (m, dim), through :func:`bin_window`'s cells of ``X`` (``order``, ``start``, ``lo``,
+    ``cell``, ``ncell``): each point visits only the cells its ball reaches, so the cost is
+    that of the rows near the points, not n x m, and nothing of size n x m is made."""
+    R2 = R * R * (1.0 + 1e-12)
+    a = np.zeros(3, dtype=np.int64)
+    b = np.zeros(3, dtype=np.int64)
+    for k in range(P.shape[0]):
+        empty = False
+        for ax in range(3):
+            if ax < dim:
+                a[ax] = max(int(np.floor((P[k, ax] - R - lo[ax]) / cell)), 0)
+                b[ax] = min(int(np.floor((P[k, ax] + R - lo[ax]) / cell)), ncell[ax] - 1)
+                empty = empty or a[ax] > b[ax]
+            else:
+                a[ax] = 0
+                b[ax] = 0
+        if empty:
+            continue
+        for i in range(a[0], b[0] + 1):
+            for j in range(a[1], b[1] + 1):
+                for c in range((i * ncell[1] + j) * ncell[2] + a[2],
+                               (i * ncell[1] + j) * ncell[2] + b[2] + 1):
+                    for s in range(start[c], start[c + 1]):
+                        r = order[s]
+                        if near[r]:
+                            continue
+                        d2 = 0.0
+                        for ax in range(dim):
+                            dx = X[r, ax] - P[k, ax]
+                            d2 += dx * dx
+                        if d2 < R2:
+                            near[r] = True
+
+
 @njit(cache=True, error_model="numpy")
 def window_strain(rows, X, x, order, start, lo, cell, ncell, per, Xs, xs, R, dim, out,
                   gain):
@@ -294,13 +348,7 @@ class WindowTrigger:
         p, n = vctx.particles, vctx.particles.n_owned
         if not len(X_left) or not n:
             return
-        X = self.X[:n]
-        near = np.zeros(n, dtype=bool)
-        R2 = self.R * self.R
-        for k in range(0, len(X_left), 64):  # bounded memory: n x 64 distances at a time
-            dx = vctx.box.minimum_image(X[:, None, :] - X_left[None, k:k + 64, :])
-            near |= ((dx * dx).sum(axis=2) < R2 * (1.0 + 1e-12)).any(axis=1)
-        p["trigger_reach"][:n][near] = np.inf
+        p["trigger_reach"][:n][rows_near(self.X[:n], X_left, self.R, vctx.box)] = np.inf
 
     def strain(self, vctx, limit, t, dt, out) -> None:
         """Collective: the trigger strain of the owned solid rows into ``out`` (n_owned):
