@@ -41,7 +41,7 @@ import numpy as np
 from decomposition import world
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from benchlib import record, run_benchmark, step_times  # noqa: E402
+from benchlib import record, reset_peak_rss, run_benchmark, step_times  # noqa: E402
 
 STAGES = ("solid", "fluid_assembly", "visc_solve", "ppe_solve", "fluid_halo", "phase_change")
 INFRA = ("migrate", "halo", "neighbours")
@@ -80,6 +80,7 @@ def main():
         from parsph.scene.loader import load_scene
 
         warm_up(comm, load_scene(args.scene, overrides).domain.dim)
+    reset_peak_rss()  # the peak of the measured run, not the warm-up's
     summary, stats = run_benchmark(comm, args.scene, overrides, petsc_args)
     if comm.rank != 0:
         return
@@ -102,7 +103,10 @@ def main():
                "wall_s": float(summary["wall_s"]), "startup_s": startup,
                "s_per_step": float(step_s.mean()), "s_per_step_median": float(np.median(step_s)),
                "s_per_step_max": float(step_s[worst]),
-               "step_of_max": int(col("step")[rows][worst])}
+               "step_of_max": int(col("step")[rows][worst]),
+               # every rank's whole process at its peak (the run's summary)
+               "peak_rss_mib_max": max(summary["peak_rss_mib"]),
+               "bytes_per_particle_peak_rss": summary["bytes_per_particle_peak_rss"]}
     if solid_only.any():
         metrics["s_per_step_tlsph_only"] = float(step_s[solid_only].mean())
         metrics["s_per_step_tlsph_only_median"] = float(np.median(step_s[solid_only]))

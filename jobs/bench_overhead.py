@@ -44,7 +44,8 @@ import subprocess
 import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from benchlib import FLUIDS, record, run_benchmark, step_figures, worker_line  # noqa: E402
+from benchlib import (  # noqa: E402
+    FLUIDS, record, reset_peak_rss, run_benchmark, step_figures, worker_line)
 
 #: the tank; every span is a whole number of particles at the default sizes. The water
 #: (x 0-0.4) rests against the block (x 0.4-0.7): lattice points at cell centres, the two
@@ -130,6 +131,7 @@ def worker(args):
     # debris's implicit viscous solve runs, so the kernels the measured runs load when
     # their block fluidises are loaded here, not in a timed step
     run_benchmark(comm, text, ["run.max_steps=6", "phase_change.eps_p_limit=1e-5"])
+    reset_peak_rss()  # the peak of the measured runs, not the warm-up's
     runs = []
     for _ in range(args.repeats):
         summary, stats = run_benchmark(comm, text, [f"run.max_steps={args.steps}"])
@@ -143,7 +145,9 @@ def worker(args):
                 return float(np.nanmean(np.asarray(stats[k], float)[1:])) if k in stats else 0.0
 
             fig.update(n_fluidised=last("n_fluidised"), n_coupled_mean=mean("n_coupled"),
-                       visc_iterations_mean=mean("visc_iterations"))
+                       visc_iterations_mean=mean("visc_iterations"),
+                       bytes_per_particle_peak_rss=summary["bytes_per_particle_peak_rss"],
+                       peak_rss_mib_max=max(summary["peak_rss_mib"]))
             runs.append(fig)
     if comm.rank == 0:
         means = [r["s_per_step_mean"] for r in runs]
@@ -153,7 +157,8 @@ def worker(args):
                    s_per_step_median_step=statistics.median(r["s_per_step_median"]
                                                            for r in runs),
                    startup_s=statistics.median(r["startup_s"] for r in runs))
-        for k in ("n_fluidised", "n_coupled_mean", "visc_iterations_mean"):
+        for k in ("n_fluidised", "n_coupled_mean", "visc_iterations_mean",
+                  "bytes_per_particle_peak_rss", "peak_rss_mib_max"):
             out[k] = statistics.median(r[k] for r in runs)
         print("OVERHEAD " + json.dumps(out), flush=True)
 

@@ -53,6 +53,7 @@ def measure(out: str) -> dict:
         if k in stats:
             row[k] = float(np.mean(stats[k]))
     row["n_solid"] = int(stats["n_solid"][0])
+    row["n_particles"] = int(stats["n_particles"][0])
     row["n_fluidised"] = int(stats["n_fluidised"][-1]) if "n_fluidised" in stats else 0
     return row
 
@@ -85,6 +86,9 @@ def main(argv=None) -> int:
                 record(args.csv, f"regularisation_{args.scene}", rule,
                        2 if args.scene != "slope_failure_3d" else 3, row["n_solid"], ranks,
                        {"s_per_step": row["s_per_step"], "wall_s": run["process_s"],
+                        "peak_rss_mib_max": max(run["peak_rss_mib"]),
+                        "bytes_per_particle_peak_rss":
+                            sum(run["peak_rss_mib"]) * 2.0 ** 20 / row["n_particles"],
                         **{k: v for k, v in row.items() if k.startswith("wall_s_")}})
     print("(ms per step; the stage columns are means over all steps)")
     return 0

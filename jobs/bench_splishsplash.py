@@ -28,7 +28,9 @@ flow is at the end (:func:`flow_extent`: ``front``, the largest x of a fluid par
 ``front_p999``, the x that 0.1 % of the fluid is beyond; ``top``, the largest height; m)
 and the two codes' flows against each other (``front_p999_vs_splishsplash``, ``top_vs_
 splishsplash``: relative differences; the ratios of cost mean little unless these are
-small), SPlisHSPlasH's density at its first step (``initial_density_max``, the largest,
+small), the whole process's peak RSS (``peak_rss_mib_max``, the largest rank's, and
+``bytes_per_particle_peak_rss``, every rank's over all particles: parsph's ``done:``
+line, SPlisHSPlasH's ``ru_maxrss``), SPlisHSPlasH's density at its first step (``initial_density_max``, the largest,
 and ``initial_density_floor``, the mean of the fluid's lowest layer, over rho0: the
 boundary's placement, below), and the ratios parsph / SPlisHSPlasH of the
 cost of a fluid particle-step on one core (``ratio_vs_splishsplash``; below 1: parsph is
@@ -138,7 +140,7 @@ slip = "no_slip"
 
 SPLISHSPLASH_SCRIPT = """# SPlisHSPlasH 3D dam break, written by parsph's jobs/bench_splishsplash.py
 # usage: python THIS SCENE.json OUTPUT_DIR END_TIME '[[xlo, ylo, zlo], [xhi, yhi, zhi]]'
-import json, os, sys, time
+import json, os, resource, sys, time
 
 import pysplishsplash as sph
 
@@ -183,6 +185,7 @@ print("SPLISHSPLASH_RESULT " + json.dumps(dict(
     later_steps_s=(stamps[-1] - stamps[0]) if stamps else None, run_call_s=t2 - t1,
     sweeps_mean=sum(sweeps) / max(len(sweeps), 1), sweeps_max=max(sweeps, default=0),
     x=[[round(c, 7) for c in p] for p in x], **first,
+    peak_rss_mib=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
     outside=sum(any(p[k] < lo[k] or p[k] > hi[k] for k in range(3)) for p in x))), flush=True)
 # skip the C++ teardown (timing tables; a crash there would only hide the result)
 os._exit(0)
@@ -392,6 +395,7 @@ def run_splishsplash(py, work, tag, scene, end, threads, n, wall_offset):
                 particles=res["fluid"] + res["boundary_particles"], steps=steps,
                 t_end=res["t"], run_s=run_s, process_s=wall,
                 pressure_iterations=res["sweeps_mean"], pressure_iterations_max=res["sweeps_max"],
+                peak_rss_mib=[res["peak_rss_mib"]],
                 initial_density_max=res["initial_density_max"],
                 initial_density_floor=res["initial_density_floor"],
                 **flow_extent(res.pop("x"), up=1), info=res)
@@ -453,6 +457,7 @@ def write_record(rows, args, n) -> None:
            "front_p999_peer": peer["front_p999"], "top_peer": peer["top"],
            "initial_density_max_peer": peer["initial_density_max"],
            "initial_density_floor_peer": peer["initial_density_floor"],
+           "peak_rss_mib_peer": peer["peak_rss_mib_max"],
            "wall_offset": args.wall_offset}
     for row in rows:
         if row["code"] != "parsph" or row["cores"] != peer["cores"]:
@@ -463,7 +468,8 @@ def write_record(rows, args, n) -> None:
             fig.update({f"{k}_{tag}": row[k] for k in (
                 "steps", "run_s", "front", "front_p999", "top", "ratio_vs_splishsplash",
                 "core_time_ratio_vs_splishsplash", "front_vs_splishsplash",
-                "front_p999_vs_splishsplash", "top_vs_splishsplash")})
+                "front_p999_vs_splishsplash", "top_vs_splishsplash", "peak_rss_mib_max",
+                "bytes_per_particle_peak_rss")})
     command = (f"python jobs/bench_splishsplash.py --fluid-particles {2 * n ** 3} --end-time "
                f"{args.end_time:g} --repeats {args.repeats} --density-error {args.density_error}"
                + (f" --wall-offset {args.wall_offset:g}" if args.wall_offset != WALL_OFFSET
@@ -554,6 +560,10 @@ def main():
                      "pressure_iterations_max": first["pressure_iterations_max"],
                      "density_error_max": first.get("density_error_max", math.nan),
                      **{k: first[k] for k in ("front", "front_p999", "top")},
+                     # the whole process of each rank (thread team) at its peak
+                     "peak_rss_mib_max": max(first["peak_rss_mib"]),
+                     "bytes_per_particle_peak_rss":
+                         sum(first["peak_rss_mib"]) * 2.0 ** 20 / first["particles"],
                      **{k: first.get(k, math.nan)  # the peer's: its boundary's placement
                         for k in ("initial_density_max", "initial_density_floor")}})
     ref = next(x for x in rows if x["code"] == "splishsplash")

@@ -27,9 +27,9 @@ Across the ``--repeats`` runs of a code and rank count the median of the runs' f
 printed (a median across runs: a shared machine's noise; each run's figure itself is a
 mean over its steps). Printed, one CSV row per code and rank count: seconds per step,
 particle-steps/s per core, pair interactions/s per core (particles x neighbours x steps /
-wall / cores), neighbours per particle, bytes per particle (parsph: the driver's fields +
-CSR + the stored 8-byte pair factor of every reference pair; LAMMPS: its reported memory
-per rank x ranks / N), the ratios parsph/LAMMPS per particle-step (``ratio_vs_lammps``)
+wall / cores), neighbours per particle, bytes per particle (parsph: the whole process's
+peak RSS of every rank over N, as its run reports it; LAMMPS: the memory it reports per
+rank x ranks / N, its own arrays only, not a process's RSS), the ratios parsph/LAMMPS per particle-step (``ratio_vs_lammps``)
 and per pair interaction (``pair_ratio_vs_lammps``) and the 1 -> 2 rank speed-ups.
 
 Both codes see the same neighbours by default: LAMMPS's kernel radius (its ``diameter``
@@ -153,8 +153,7 @@ def worker(args):
     if comm.rank == 0:
         fig = step_figures(stats)  # the whole step: the mean over the steps after the first
         nb = summary["neighbours_per_particle"]
-        # the stage stores one float64 kernel factor per reference pair (kernels.pair_factors)
-        nbytes = summary["bytes_per_particle"] + 8.0 * nb
+        nbytes = summary["bytes_per_particle_peak_rss"]  # every rank's whole process
         print(f"PARSPH {fig['s_per_step_mean']:.6g} {summary['particles']} {nb:.3f} "
               f"{nbytes:.0f} {fig['s_per_step_median']:.6g} {fig['startup_s']:.6g}", flush=True)
 

@@ -17,10 +17,11 @@ from __future__ import annotations
 import csv
 import os
 import re
-import resource
 import subprocess
 import sys
 import time
+
+from base.memory import peak_rss_mib, reset_peak_rss  # noqa: F401 (re-exported)
 
 COLUMNS = ["benchmark", "code", "dim", "particles", "ranks", "metric", "value"]
 
@@ -58,34 +59,6 @@ viscosity_max = 1.0e4
 cohesion = 10.0
 friction_angle = 19.5
 """
-
-
-def reset_peak_rss() -> bool:
-    """Reset this process's peak RSS (Linux: write ``5`` to ``/proc/self/clear_refs``, which
-    sets ``VmHWM`` to the present RSS), e.g. after a warm-up in the same process. False
-    where that cannot be done: :func:`peak_rss_mib` is then the process's peak since it
-    started, which a job says in its output as ``peak_rss_since_start = 1``."""
-    try:
-        with open("/proc/self/clear_refs", "w") as fh:
-            fh.write("5")
-        return True
-    except OSError:
-        return False
-
-
-def peak_rss_mib() -> float:
-    """This process's peak resident set (MiB), the whole process (interpreter, numba, PETSc,
-    hypre, MPI included): ``VmHWM`` of ``/proc/self/status`` (since the last
-    :func:`reset_peak_rss`), else ``ru_maxrss`` (since the process started)."""
-    try:
-        with open("/proc/self/status") as fh:
-            for line in fh:
-                if line.startswith("VmHWM:"):
-                    return float(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    scale = 1.0 / 2 ** 20 if sys.platform == "darwin" else 1.0 / 1024.0  # bytes / KiB
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * scale
 
 
 def step_times(stats, column: str = "elapsed_s"):
@@ -170,7 +143,8 @@ def mpirun_parsph(ranks: int, scene: str, out: str, sets=()) -> dict:
     """Run ``parsph run SCENE --out OUT`` under ``mpirun -n RANKS`` (one ``--set`` per
     entry of ``sets``) and read its ``done:`` line robustly (ranks' output may carry
     terminal codes). Returns ``steps``, ``t_end`` (s), ``run_s`` (parsph's own timer:
-    particle build and steps) and ``process_s`` (the whole process, s); exits with the
+    particle build and steps), ``process_s`` (the whole process, s) and ``peak_rss_mib``
+    (each rank's whole process at its peak, MiB: ``parsph.step.run``); exits with the
     command and its output when the run fails or its line cannot be read. The caller
     must not have initialised MPI (h5py/mpi4py would) before it starts mpirun."""
     exe = os.path.join(os.path.dirname(sys.executable), "parsph")
@@ -184,10 +158,19 @@ def mpirun_parsph(ranks: int, scene: str, out: str, sets=()) -> dict:
         sys.exit(f"parsph failed ({proc.returncode}): {' '.join(cmd)}\n{proc.stdout[-2000:]}\n"
                  f"{proc.stderr[-3000:]}")
     what = f"parsph run ({' '.join(cmd)}), its log"
-    done = re.match(r"(\d+) steps to t = (\S+) s in (\S+) s wall",
-                    worker_line(proc.stderr, "done: ", what))
-    if done is None:
-        sys.exit(f"{what}: its 'done:' line does not read 'N steps to t = T s in W s wall':\n"
-                 f"{proc.stderr[-2000:]}")
+    return dict(done_figures(proc.stderr, what), process_s=wall)
+
+
+def done_figures(log: str, what: str) -> dict:
+    """The figures of a parsph run's ``done:`` line in ``log`` (a rank's output, terminal
+    codes and all): ``steps``, ``t_end`` (s), ``run_s`` (s) and ``peak_rss_mib`` (each
+    rank's, MiB); exits naming ``what`` where the line is missing or reads otherwise."""
+    line = worker_line(log, "done: ", what)
+    done = re.match(r"(\d+) steps to t = (\S+) s in (\S+) s wall", line)
+    rss = re.search(r"peak memory ([\d /]+) MiB per rank", line)
+    if done is None or rss is None:
+        sys.exit(f"{what}: its 'done:' line does not read 'N steps to t = T s in W s wall; "
+                 f"peak memory M0 / M1 ... MiB per rank':\n{line}")
     return dict(steps=int(done.group(1)), t_end=float(done.group(2)),
-                run_s=float(done.group(3)), process_s=wall)
+                run_s=float(done.group(3)),
+                peak_rss_mib=[float(m) for m in rss.group(1).split("/")])

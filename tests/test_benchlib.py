@@ -25,6 +25,20 @@ def test_worker_line_names_the_worker_and_shows_its_output():
     assert "parsph worker" in text and "'PARSPH'" in text and "boom" in text
 
 
+def test_done_line_gives_the_runs_figures_and_each_ranks_peak_memory():
+    """jobs/benchlib.py reads a parsph run's ``done:`` line (from ranks' pseudo-terminals)
+    for its steps, time, wall time and the peak memory of every rank; a line without the
+    memory (an older parsph) is refused by name."""
+    from benchlib import done_figures
+
+    log = ("\x1b[0m12:00:01 0/2 INFO done: 168 steps to t = 0.100235 s in 21.84 s wall; "
+           "peak memory 412 / 398 MiB per rank; output in out/db\r\n")
+    assert done_figures(log, "run") == {"steps": 168, "t_end": 0.100235, "run_s": 21.84,
+                                        "peak_rss_mib": [412.0, 398.0]}
+    with pytest.raises(SystemExit, match="peak memory"):
+        done_figures("INFO done: 3 steps to t = 0.1 s in 2.0 s wall; output in x\n", "run")
+
+
 def test_splishsplash_fluid_block_matches_the_parsph_column(comm, tmp_path):
     """jobs/bench_splishsplash.py: both codes get n x n x 2n fluid particles at the same
     centres (k + 1/2) d (SPlisHSPlasH: x along, y up, z across; parsph: z up)."""
@@ -108,7 +122,8 @@ def test_splishsplash_record_keeps_both_tolerances(tmp_path, monkeypatch):
     monkeypatch.setenv("PARSPH_FIGURES", str(tmp_path))
     keys = ("steps", "run_s", "front", "front_p999", "top", "ratio_vs_splishsplash",
             "core_time_ratio_vs_splishsplash", "front_vs_splishsplash",
-            "front_p999_vs_splishsplash", "top_vs_splishsplash")
+            "front_p999_vs_splishsplash", "top_vs_splishsplash", "peak_rss_mib_max",
+            "bytes_per_particle_peak_rss")
     peer = dict({k: 1.0 for k in keys}, code="splishsplash", cores=1, fluid=24334,
                 ppe_density_error=1e-4, initial_density_max=1.02, initial_density_floor=0.99)
     rows = [peer] + [dict({k: 2.0 + eta for k in keys}, code="parsph", cores=c,

@@ -55,6 +55,28 @@ def test_the_frame_schedule_does_not_change_the_steps(comm, mpi_tmp_path, name, 
         assert np.array_equal(x[key], y[key]), key
 
 
+def test_a_run_reports_each_ranks_peak_memory(comm, mpi_tmp_path, caplog):
+    """The end of a run gives every rank's whole-process peak RSS: in its ``done:`` line
+    (what a user reads, and the benchmark jobs parse) and in its summary, with the bytes
+    per particle they make."""
+    import logging
+    import re
+
+    scene = load_scene("dam_break", ["domain.particle_size=0.0146", "run.end_time=0.002",
+                                     "output.progress=false"])
+    with caplog.at_level(logging.INFO, logger="parsph"):
+        summary = run(scene, os.path.join(mpi_tmp_path, "rss"), comm=comm, progress=False)
+    rss = summary["peak_rss_mib"]
+    assert len(rss) == comm.size and all(50.0 < m < 1e5 for m in rss)  # a Python + PETSc process
+    assert summary["bytes_per_particle_peak_rss"] == pytest.approx(
+        sum(rss) * 2 ** 20 / summary["particles"])
+    if comm.rank == 0:
+        done = [r.getMessage() for r in caplog.records if r.getMessage().startswith("done:")]
+        assert len(done) == 1
+        shown = re.search(r"peak memory ([\d /]+) MiB per rank", done[0]).group(1)
+        assert [float(m) for m in shown.split("/")] == pytest.approx(rss, abs=0.5)
+
+
 def test_a_run_shorter_than_its_frame_interval(comm, mpi_tmp_path):
     """``run.end_time`` below ``output.every`` (dam_break's 0.02 s): frame 0 and the last
     state are written (the issue: the scene was refused)."""

@@ -29,9 +29,10 @@ import os
 import time
 
 from base import heap
+from base.memory import peak_rss_mib
 from decomposition import collective, world
 from decomposition.box import Box
-from decomposition.reduce import global_any, global_sum
+from decomposition.reduce import allgather, global_any, global_sum
 from parsph.core.context import Context
 from parsph.core.kernel import smoothing_length, support_radius
 from parsph.core.particles import ParticleSet
@@ -403,14 +404,17 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
     pairs = global_sum(comm, len(ctx.indices))
     wall = time.perf_counter() - wall0
     figures = balance.summary()
-    log.info("done: %d steps to t = %.6g s in %.2f s wall; output in %s", ctx.step, ctx.time,
-             wall, out)
+    rss = allgather(comm, peak_rss_mib())  # the whole process of each rank, at its peak
+    log.info("done: %d steps to t = %.6g s in %.2f s wall; peak memory %s MiB per rank; "
+             "output in %s", ctx.step, ctx.time, wall, " / ".join(f"{m:.0f}" for m in rss),
+             out)
     log.info("energy balance: largest rise of a step %.3g, over any stretch %.3g, of the "
              "peak kinetic energy (docs/energy.md)", figures["energy_rise_max"],
              figures["energy_gain_max"])
     return {"steps": ctx.step, "time": ctx.time, "wall_s": wall, "particles": n_total,
             "dim": ctx.dim, "out": out, **figures,
-            "bytes_per_particle": memory / max(n_total, 1),
+            "bytes_per_particle": memory / max(n_total, 1), "peak_rss_mib": rss,
+            "bytes_per_particle_peak_rss": sum(rss) * 2.0 ** 20 / max(n_total, 1),
             "neighbours_per_particle": pairs / max(n_total, 1)}
 
 
