@@ -2,7 +2,8 @@
 process, interpreter, numba, MPI, PETSc and hypre included, not only parsph's arrays.
 
 It lives in :mod:`base` because :mod:`parsph.step.run` reports it at the end of a run (the
-``done:`` line, the summary's ``peak_rss_mib``) and the benchmark jobs read it."""
+``done:`` line, the summary's ``peak_rss_mib``) and the benchmark jobs read it, per
+particle by :func:`bytes_per_particle`."""
 from __future__ import annotations
 
 import resource
@@ -20,6 +21,12 @@ def reset_peak_rss() -> bool:
         return True
     except OSError:
         return False
+
+
+def bytes_per_particle(rss_mib, particles: int) -> float:
+    """Bytes per particle of the ranks' memory ``rss_mib`` (MiB each, e.g. their
+    :func:`peak_rss_mib`) summed over ``particles`` particles (at least one)."""
+    return float(sum(rss_mib) * 2.0 ** 20 / max(int(particles), 1))
 
 
 def peak_rss_mib() -> float:

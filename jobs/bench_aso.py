@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import resource
 import sys
 import time
 
@@ -40,7 +39,7 @@ from decomposition import world
 from decomposition.reduce import allgather
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from benchlib import record, step_times  # noqa: E402
+from benchlib import bytes_per_particle, peak_rss_mib, record, step_times  # noqa: E402
 
 PARTS = {"solid": ("wall_s_solid",), "fluid": ("wall_s_fluid",),
          "phase_change": ("wall_s_phase_change",),
@@ -135,7 +134,7 @@ def main():
     except Preempted:  # stopped by a signal (a batch system's limit): report what ran
         summary, stopped = None, 1
     wall = time.perf_counter() - t0
-    rss = allgather(comm, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
+    rss = allgather(comm, peak_rss_mib())
     if comm.rank != 0:
         return
     stats = read_stats(os.path.join(out, "stats.csv"))
@@ -145,7 +144,7 @@ def main():
     if summary is None:
         summary = {"dim": scene.domain.dim, "particles": int(stats["n_particles"][-1])}
     fig.update({f"peak_rss_mib_rank{r}": float(m) for r, m in enumerate(rss)})
-    fig["bytes_per_particle"] = float(sum(rss) * 2 ** 20 / summary["particles"])
+    fig["bytes_per_particle"] = bytes_per_particle(rss, summary["particles"])
     fig.update(project(fig, args.d, args.project, args.cores, comm.size, args.efficiency))
     record(args.csv, f"aso_d{args.d:g}", "parsph", summary["dim"], summary["particles"],
            comm.size, fig)

@@ -44,7 +44,7 @@ from decomposition.reduce import allgather, barrier, broadcast
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from benchlib import (  # noqa: E402
-    peak_rss_mib, record, reset_peak_rss, step_figures, step_times)
+    bytes_per_particle, peak_rss_mib, record, reset_peak_rss, step_figures, step_times)
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 SCENE = os.path.join(HERE, "scenes", "landslide_slab.toml")
@@ -139,7 +139,7 @@ def branch(comm, scene_path, restart, out, steps, sets, petsc_args, profile=0) -
             fig[f"{k}_mean"] = float(np.nanmean(np.asarray(s[k], float)[later]))
     fig.update({f"peak_rss_mib_rank{r}": float(m) for r, m in enumerate(rss)})
     fig["peak_rss_since_start"] = int(not exact)
-    fig["bytes_per_particle"] = float(sum(rss) * 2 ** 20 / summary["particles"])
+    fig["bytes_per_particle"] = bytes_per_particle(rss, summary["particles"])
     fig["particles"] = int(summary["particles"])
     return fig
 

@@ -62,8 +62,8 @@ import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from benchlib import (  # noqa: E402
-    FLUIDS, peak_rss_mib, record, reset_peak_rss, run_benchmark, step_figures, step_times,
-    worker_line)
+    FLUIDS, bytes_per_particle, peak_rss_mib, record, reset_peak_rss, run_benchmark,
+    step_figures, step_times, worker_line)
 
 #: the tank: x in [0, 1] m, the slab y in [0, Y], z up; every span a whole number of d.
 #: The debris column (x 0.1-0.5, 0.4 high) rests against the block (x 0.5-1.0, 0.3 high):
@@ -239,7 +239,7 @@ def worker(args):
         if k in stats and per_step.size:
             out[f"{k}_mean"] = float(np.nanmean(col(k)[later]))
     # memory: the whole process's peak RSS of every rank over all particles
-    out["bytes_per_particle_peak_rss"] = sum(peaks) * 2.0 ** 20 / n
+    out["bytes_per_particle_peak_rss"] = bytes_per_particle(peaks, n)
     out["peak_rss_mib_per_rank"] = max(peaks)
     out.update({f"peak_rss_mib_rank{r}": m for r, m in enumerate(peaks)})
     out["peak_rss_since_start"] = int(not exact)

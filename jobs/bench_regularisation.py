@@ -22,7 +22,7 @@ import tempfile
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-from benchlib import mpirun_parsph, record  # noqa: E402
+from benchlib import bytes_per_particle, mpirun_parsph, record  # noqa: E402
 
 #: stats.csv columns of a stage's wall time, in the order printed.
 STAGES = ("wall_s_solid", "wall_s_nonlocal", "wall_s_fluid", "wall_s_phase_change",
@@ -88,7 +88,7 @@ def main(argv=None) -> int:
                        {"s_per_step": row["s_per_step"], "wall_s": run["process_s"],
                         "peak_rss_mib_max": max(run["peak_rss_mib"]),
                         "bytes_per_particle_peak_rss":
-                            sum(run["peak_rss_mib"]) * 2.0 ** 20 / row["n_particles"],
+                            bytes_per_particle(run["peak_rss_mib"], row["n_particles"]),
                         **{k: v for k, v in row.items() if k.startswith("wall_s_")}})
     print("(ms per step; the stage columns are means over all steps)")
     return 0

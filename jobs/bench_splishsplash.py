@@ -30,12 +30,12 @@ and the two codes' flows against each other (``front_p999_vs_splishsplash``, ``t
 splishsplash``: relative differences; the ratios of cost mean little unless these are
 small), the whole process's peak RSS (``peak_rss_mib_max``, the largest rank's, and
 ``bytes_per_particle_peak_rss``, every rank's over all particles: parsph's ``done:``
-line, SPlisHSPlasH's ``ru_maxrss``), SPlisHSPlasH's density at its first step (``initial_density_max``, the largest,
-and ``initial_density_floor``, the mean of the fluid's lowest layer, over rho0: the
-boundary's placement, below), and the ratios parsph / SPlisHSPlasH of the
-cost of a fluid particle-step on one core (``ratio_vs_splishsplash``; below 1: parsph is
-cheaper) and of the core-seconds to the end time (``core_time_ratio_vs_splishsplash``;
-the two codes take different steps).
+line, SPlisHSPlasH's ``ru_maxrss``), SPlisHSPlasH's density at its first step
+(``initial_density_max``, the largest, and ``initial_density_floor``, the mean of the
+fluid's lowest layer, over rho0: the boundary's placement, below), and the ratios parsph /
+SPlisHSPlasH of the cost of a fluid particle-step on one core (``ratio_vs_splishsplash``;
+below 1: parsph is cheaper) and of the core-seconds to the end time
+(``core_time_ratio_vs_splishsplash``; the two codes take different steps).
 
 Where the peer's wall goes (docs/benchmarks.md, "SPlisHSPlasH, the same flow"). An
 Akinci boundary is one layer of particles; the fluid's first layer feels it as a wall
@@ -88,7 +88,7 @@ import tempfile
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from benchlib import mpirun_parsph, record, worker_line  # noqa: E402
+from benchlib import bytes_per_particle, mpirun_parsph, record, worker_line  # noqa: E402
 
 A, RHO, NU, G = 0.146, 1000.0, 1.0e-6, 9.81  # as parsph/scenes/dam_break.toml
 TANK_LENGTH, TANK_DEPTH, TANK_HEIGHT = 4.0 * A, A, 0.35
@@ -563,7 +563,7 @@ def main():
                      # the whole process of each rank (thread team) at its peak
                      "peak_rss_mib_max": max(first["peak_rss_mib"]),
                      "bytes_per_particle_peak_rss":
-                         sum(first["peak_rss_mib"]) * 2.0 ** 20 / first["particles"],
+                         bytes_per_particle(first["peak_rss_mib"], first["particles"]),
                      **{k: first.get(k, math.nan)  # the peer's: its boundary's placement
                         for k in ("initial_density_max", "initial_density_floor")}})
     ref = next(x for x in rows if x["code"] == "splishsplash")

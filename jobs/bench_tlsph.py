@@ -29,8 +29,9 @@ mean over its steps). Printed, one CSV row per code and rank count: seconds per 
 particle-steps/s per core, pair interactions/s per core (particles x neighbours x steps /
 wall / cores), neighbours per particle, bytes per particle (parsph: the whole process's
 peak RSS of every rank over N, as its run reports it; LAMMPS: the memory it reports per
-rank x ranks / N, its own arrays only, not a process's RSS), the ratios parsph/LAMMPS per particle-step (``ratio_vs_lammps``)
-and per pair interaction (``pair_ratio_vs_lammps``) and the 1 -> 2 rank speed-ups.
+rank x ranks / N, its own arrays only, not a process's RSS), the ratios parsph/LAMMPS
+per particle-step (``ratio_vs_lammps``) and per pair interaction (``pair_ratio_vs_lammps``)
+and the 1 -> 2 rank speed-ups.
 
 Both codes see the same neighbours by default: LAMMPS's kernel radius (its ``diameter``
 of an SMD particle) is parsph's support 2h = 2.4 d (``--lammps-kernel 2.4``, in units of

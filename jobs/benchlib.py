@@ -21,7 +21,7 @@ import subprocess
 import sys
 import time
 
-from base.memory import peak_rss_mib, reset_peak_rss  # noqa: F401 (re-exported)
+from base.memory import bytes_per_particle, peak_rss_mib, reset_peak_rss  # noqa: F401 (re-exported)
 
 COLUMNS = ["benchmark", "code", "dim", "particles", "ranks", "metric", "value"]
 

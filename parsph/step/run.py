@@ -29,7 +29,7 @@ import os
 import time
 
 from base import heap
-from base.memory import peak_rss_mib
+from base.memory import bytes_per_particle, peak_rss_mib
 from decomposition import collective, world
 from decomposition.box import Box
 from decomposition.reduce import allgather, global_any, global_sum
@@ -414,7 +414,7 @@ def run(scene, out: str, comm=None, petsc_args=(), progress: bool | None = None,
     return {"steps": ctx.step, "time": ctx.time, "wall_s": wall, "particles": n_total,
             "dim": ctx.dim, "out": out, **figures,
             "bytes_per_particle": memory / max(n_total, 1), "peak_rss_mib": rss,
-            "bytes_per_particle_peak_rss": sum(rss) * 2.0 ** 20 / max(n_total, 1),
+            "bytes_per_particle_peak_rss": bytes_per_particle(rss, n_total),
             "neighbours_per_particle": pairs / max(n_total, 1)}
 
 
